@@ -1,0 +1,43 @@
+# pcr_pro — top-level convenience targets.
+#   make demo   install missing Debian packages, build, run the main job on shipped data
+#   make test   install missing Debian packages, build, run all tests (ctest)
+#   make build  configure (once) and build only
+#   make bench  build and run the benchmarks
+# Debian's /usr/bin comes first on PATH: a pyenv python3 would break catkin.
+SHELL := /bin/bash
+export PATH := /usr/bin:/bin:/usr/sbin:/sbin:$(PATH)
+
+BUILD_DIR ?= build
+BUILD_TYPE ?= Release
+JOBS ?= 2
+
+.PHONY: all deps configure build test demo bench clean
+
+all: build
+
+deps:
+	@scripts/install_deps.sh build
+
+$(BUILD_DIR)/CMakeCache.txt:
+	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) -DCATKIN_DEVEL_PREFIX=$(CURDIR)/$(BUILD_DIR)/devel
+
+configure: $(BUILD_DIR)/CMakeCache.txt
+
+build: configure
+	cmake --build $(BUILD_DIR) -j $(JOBS)
+
+test: deps
+	@$(MAKE) --no-print-directory build
+	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)
+
+demo: deps
+	@$(MAKE) --no-print-directory build
+	scripts/demo.sh $(BUILD_DIR)
+
+bench:
+	@scripts/install_deps.sh bench
+	@$(MAKE) --no-print-directory build
+	scripts/bench.sh $(BUILD_DIR)
+
+clean:
+	rm -rf $(BUILD_DIR)

@@ -1,0 +1,62 @@
+/**
+ * @file covariance.h
+ * @brief Closed-form ICP covariance (Censi 2007; Prakhya et al. 2015 for 3D point-to-point,
+ * and the point-to-plane analogue) and the information matrix for a pose-graph edge.
+ *
+ * cov(x) ≈ H⁻¹ (∂²J/∂z∂x) cov(z) (∂²J/∂z∂x)ᵀ H⁻¹, evaluated at the converged pose on the final
+ * correspondences and accumulated per correspondence in O(n). The pose perturbation is a left
+ * perturbation in the target frame, δ = (x, y, z, rot_x, rot_y, rot_z[, log scale]):
+ * S = exp(δ) · Ŝ.
+ */
+#pragma once
+
+#include <string>
+
+#include "pcr_pro/core/icp.h"
+#include "pcr_pro/core/sim3.h"
+#include "pcr_pro/core/types.h"
+
+namespace pcr_pro {
+
+/// Options of the covariance stage.
+struct CovarianceOptions {
+  /// Isotropic noise of each point coordinate, in both clouds [target units]; 0 = estimate it
+  /// from the residuals of the final correspondences.
+  double sensor_noise_stddev = 0.0;
+  /// A direction is unobservable (status DEGENERATE) when the condition number of the
+  /// geometric information (normals, rotation in units of the cloud radius) exceeds this [-].
+  double degeneracy_condition_threshold = 1.0e4;
+  /// Neighbours used to estimate normals of the matched target points when the
+  /// correspondences carry none (point-to-point ICP) (>= 3).
+  int normal_neighbors = 10;
+};
+
+/// @throw InputError naming the option when out of range
+void validate(const CovarianceOptions& options);
+
+/// Covariance and information of an ICP result.
+struct CovarianceResult {
+  Status status = Status::kOk;  ///< kOk, kDegenerate, or kIcpNotConverged (too few correspondences)
+  std::string message;
+  Matrix6d covariance = Matrix6d::Zero();   ///< (x, y, z, rot_x, rot_y, rot_z) [target units², rad²]
+  Matrix6d information = Matrix6d::Zero();  ///< inverse of covariance; zero along unobservable directions
+  bool with_scale = false;                  ///< covariance7 is valid
+  Matrix7d covariance7 = Matrix7d::Zero();  ///< as covariance, plus the scale s as 7th variable [-]
+  double scale_stddev = 0.0;                ///< sqrt of covariance7(6, 6) [-]
+  double noise_stddev = 0.0;                ///< the noise σ used [target units]
+  double condition_number = 0.0;            ///< of the normalised geometric information [-]
+  int correspondences = 0;
+};
+
+/**
+ * @brief Closed-form covariance of an ICP result.
+ * @param[in] matches final correspondences (source points in the source frame)
+ * @param[in] transform converged S_target_source
+ * @param[in] metric error metric the ICP minimised (point-to-plane needs target normals)
+ * @param[in] with_scale the scale was estimated too (adds the 7th variable)
+ * @param[in] options noise and degeneracy settings
+ */
+CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
+                                      bool with_scale, const CovarianceOptions& options);
+
+}  // namespace pcr_pro

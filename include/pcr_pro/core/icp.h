@@ -1,0 +1,96 @@
+/**
+ * @file icp.h
+ * @brief ICP refinement chain in the spirit of libpointmatcher: k-d tree matching, maximum
+ * distance and trimmed outlier rejection, point-to-point / point-to-plane minimisation with an
+ * optional bounded scale update, counter and differential stop checks.
+ */
+#pragma once
+
+#include <string>
+
+#include "pcr_pro/core/sim3.h"
+#include "pcr_pro/core/types.h"
+
+namespace pcr_pro {
+
+/// Error minimised by the ICP step.
+enum class ErrorMetric { kPointToPoint, kPointToPlane };
+
+/// @return "point_to_point" or "point_to_plane"
+const char* errorMetricName(ErrorMetric metric);
+/// @return false when the name is unknown
+bool parseErrorMetric(const std::string& name, ErrorMetric* metric);
+
+/// Options of the ICP chain; each block mirrors one stage of config/icp.yaml.
+struct IcpOptions {
+  // --- matcher
+  int normal_neighbors = 10;  ///< neighbours used to estimate target normals (>= 3)
+  // --- outlier rejection
+  /// Correspondences farther apart than this are rejected [target units]; 0 = no limit.
+  double max_correspondence_distance = 0.0;
+  /// Fraction of the closest correspondences kept after the distance check, in (0, 1] [-].
+  double trim_ratio = 0.8;
+  // --- error minimisation
+  ErrorMetric error_metric = ErrorMetric::kPointToPlane;
+  /// Estimate a similarity (scale) instead of a rigid transform.
+  bool estimate_scale = false;
+  /// Largest relative scale change in one iteration, in (0, 1) [-].
+  double max_scale_step = 0.1;
+  /// The scale is kept inside [min_scale_ratio, max_scale_ratio] times the initial scale [-].
+  double min_scale_ratio = 0.5;
+  double max_scale_ratio = 2.0;
+  // --- stop checks
+  int max_iterations = 60;  ///< counter check
+  /// Differential check: stop when the last step moved less than this fraction of the target
+  /// cloud's RMS radius [-] ...
+  double min_relative_translation_change = 1e-5;
+  /// ... and rotated less than this [rad] ...
+  double min_rotation_change = 1e-5;
+  /// ... and changed the scale by less than this fraction [-].
+  double min_scale_change = 1e-5;
+  /// Fewer correspondences than this after rejection fails the registration.
+  int min_correspondences = 10;
+};
+
+/// @throw InputError naming the option when out of range
+void validate(const IcpOptions& options);
+
+/// Correspondences at the final pose, as used for the fitness and the covariance.
+struct Correspondences {
+  Cloud source;          ///< matched source points, in the source frame [source units]
+  Cloud target;          ///< matched target points, in the target frame [target units]
+  Cloud target_normals;  ///< unit normals at the target points (empty when not estimated)
+};
+
+/// Outcome of an ICP run.
+struct IcpResult {
+  Status status = Status::kIcpNotConverged;
+  std::string message;
+  Sim3 transform;              ///< S_target_source
+  double fitness_rmse = 0.0;   ///< RMS distance of the kept correspondences at the final pose [target units]
+  int correspondences = 0;     ///< kept correspondences at the final pose
+  bool converged = false;      ///< the differential check stopped the iterations
+  int iterations = 0;
+  Correspondences matches;     ///< final correspondences
+};
+
+/**
+ * @brief Registers source onto target.
+ * @param[in] source cloud in the source frame
+ * @param[in] target cloud in the target frame
+ * @param[in] initial initial guess of S_target_source
+ * @param[in] options chain configuration
+ * @return the result; status kOk when converged, kIcpNotConverged otherwise (too few
+ *         correspondences, iteration limit, numerical failure) with a message
+ * @throw InputError on invalid options or empty clouds
+ */
+IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial, const IcpOptions& options);
+
+/**
+ * @brief Closed-form similarity (Umeyama) between paired points: dst ≈ s R src + t.
+ * @param[in] with_scale estimate s; otherwise s = 1
+ * @return the best transform in the least-squares sense
+ */
+Sim3 umeyama(const Cloud& src, const Cloud& dst, bool with_scale);
+
+}  // namespace pcr_pro

@@ -1,0 +1,21 @@
+/**
+ * @file normals.h
+ * @brief Surface normals from local PCA over k nearest neighbours.
+ */
+#pragma once
+
+#include "pcr_pro/core/kdtree.h"
+#include "pcr_pro/core/types.h"
+
+namespace pcr_pro {
+
+/**
+ * @brief Estimates a unit normal per point from its k nearest neighbours (smallest PCA axis).
+ * Points with fewer than 3 neighbours get a zero normal.
+ * @param[in] tree k-d tree over the cloud
+ * @param[in] k neighbours used (>= 3)
+ * @return one unit (or zero) normal per point, sign arbitrary
+ */
+Cloud estimateNormals(const KdTree& tree, int k);
+
+}  // namespace pcr_pro

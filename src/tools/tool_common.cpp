@@ -1,0 +1,52 @@
+#include "tool_common.h"
+
+#include <filesystem>
+#include <fstream>
+
+#include "pcr_pro/core/cloud_io.h"
+
+namespace pcr_pro {
+namespace tools {
+
+Arguments::Arguments(int argc, char** argv, const std::set<std::string>& valued, const std::set<std::string>& flags) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (valued.count(arg)) {
+      if (i + 1 >= argc) throw UsageError("option " + arg + " needs a value");
+      if (values_.count(arg)) throw UsageError("option " + arg + " given twice");
+      values_[arg] = argv[++i];
+    } else if (flags.count(arg)) {
+      flags_.insert(arg);
+    } else {
+      throw UsageError("unknown argument '" + arg + "' (see --help)");
+    }
+  }
+}
+
+std::optional<std::string> Arguments::value(const std::string& key) const {
+  const auto it = values_.find(key);
+  if (it == values_.end()) return std::nullopt;
+  return it->second;
+}
+
+std::string Arguments::required(const std::string& key) const {
+  const auto v = value(key);
+  if (!v) throw UsageError("missing required option " + key + " (see --help)");
+  return *v;
+}
+
+void writeOutputs(const std::string& dir, const std::string& yaml, const Cloud& fused) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) throw InputError(dir + ": cannot create output directory (" + ec.message() + ")");
+  const std::string result_path = (std::filesystem::path(dir) / "result.yaml").string();
+  std::ofstream out(result_path);
+  out << yaml;
+  if (!out) throw InputError(result_path + ": cannot write file");
+  writePcd((std::filesystem::path(dir) / "fused.pcd").string(), fused);
+}
+
+int exitStatus(const RegistrationReport& report) { return report.status == Status::kOk ? 0 : 1; }
+
+}  // namespace tools
+}  // namespace pcr_pro

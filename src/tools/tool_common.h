@@ -1,0 +1,42 @@
+// Helpers shared by the offline command-line tools (argument parsing, output writing).
+#pragma once
+
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+
+#include "pcr_pro/core/report.h"
+#include "pcr_pro/core/types.h"
+
+namespace pcr_pro {
+namespace tools {
+
+/// Bad command line: reported as a one-line error and exit status 2.
+class UsageError : public std::runtime_error {
+ public:
+  explicit UsageError(const std::string& m) : std::runtime_error(m) {}
+};
+
+/// Parses "--key value" options and "--flag" flags; throws UsageError on unknown or repeated
+/// options and on options missing their value.
+class Arguments {
+ public:
+  Arguments(int argc, char** argv, const std::set<std::string>& valued, const std::set<std::string>& flags);
+  std::optional<std::string> value(const std::string& key) const;
+  std::string required(const std::string& key) const;
+  bool flag(const std::string& key) const { return flags_.count(key) > 0; }
+
+ private:
+  std::map<std::string, std::string> values_;
+  std::set<std::string> flags_;
+};
+
+/// Writes DIR/result.yaml and DIR/fused.pcd (creating DIR). @throw InputError on failure.
+void writeOutputs(const std::string& dir, const std::string& yaml, const Cloud& fused);
+
+/// @return exit status of the contract for a report: 0 when OK, 1 otherwise
+int exitStatus(const RegistrationReport& report);
+
+}  // namespace tools
+}  // namespace pcr_pro
