@@ -15,20 +15,6 @@ namespace {
 using Matrix73d = Eigen::Matrix<double, 7, 3>;
 using Vector7d = Eigen::Matrix<double, 7, 1>;
 
-// Symmetric pseudo-inverse of the leading d x d block (d = 6 or 7); zero elsewhere.
-Matrix7d pseudoInverse(const Matrix7d& m, int d) {
-  Matrix7d out = Matrix7d::Zero();
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(m.topLeftCorner(d, d));
-  const Eigen::VectorXd ev = eig.eigenvalues();
-  const double max_ev = ev.cwiseAbs().maxCoeff();
-  Eigen::MatrixXd inv = Eigen::MatrixXd::Zero(d, d);
-  for (int k = 0; k < d; ++k) {
-    if (ev(k) > 1e-14 * max_ev) inv += eig.eigenvectors().col(k) * eig.eigenvectors().col(k).transpose() / ev(k);
-  }
-  out.topLeftCorner(d, d) = inv;
-  return out;
-}
-
 // Change of variables from the normalised, centroid-referenced perturbation u to the contract's
 // origin-referenced δ: δ = K u, K = Tc D. u_t = δt about the centroid c, u_r = ρ δω, u_s = ρ δσ,
 // so that every component of u is a displacement [target units].
@@ -144,35 +130,39 @@ CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3
     }
   }
 
-  // Censi: cov_u = σ² H⁻¹ (G + H) H⁻¹ (the H term is the target-point noise).
-  const Matrix7d hinv = pseudoInverse(h, d);
-  Matrix7d cov_u = sigma2 * hinv * (g + h) * hinv;
-  cov_u = 0.5 * (cov_u + cov_u.transpose()).eval();
-  // Unobservable directions get an (effectively) unbounded variance.
+  // Censi on the observable subspace V_o (unobservable directions V_n are kept out of every
+  // inversion): cov_o = σ² H_o⁻¹ (G_o + H_o) H_o⁻¹ with X_o = V_oᵀ X V_o; the H term is the
+  // target-point noise, G the source-point noise.
+  const Eigen::Index k_obs = d - null_dirs.cols();
+  const Eigen::MatrixXd v_obs = oeig.eigenvectors().rightCols(k_obs);
+  const Eigen::MatrixXd h_o = v_obs.transpose() * h.topLeftCorner(d, d) * v_obs;
+  const Eigen::MatrixXd g_o = v_obs.transpose() * g.topLeftCorner(d, d) * v_obs;
+  const Eigen::MatrixXd h_o_inv = h_o.inverse();
+  Eigen::MatrixXd cov_o = sigma2 * h_o_inv * (g_o + h_o) * h_o_inv;
+  cov_o = 0.5 * (cov_o + cov_o.transpose()).eval();
+  const Eigen::MatrixXd info_o = cov_o.inverse();
+
+  // Back to u (d x d): unobservable directions get an effectively unbounded variance and no
+  // information at all.
+  Matrix7d cov_u = Matrix7d::Zero(), info_u = Matrix7d::Zero();
+  cov_u.topLeftCorner(d, d) = v_obs * cov_o * v_obs.transpose();
+  info_u.topLeftCorner(d, d) = v_obs * info_o * v_obs.transpose();
   const double big = 1e6 * rho * rho;
   for (Eigen::Index k = 0; k < null_dirs.cols(); ++k) {
     cov_u.topLeftCorner(d, d) += big * null_dirs.col(k) * null_dirs.col(k).transpose();
   }
 
+  // u -> δ. Covariance: the 6x6 pose block is the marginal. Information of the pose marginal:
+  // the Schur complement of the scale in the joint information.
   const Matrix7d kmat = centroidToOrigin(c, rho);
-  Matrix7d cov7 = kmat * cov_u * kmat.transpose();  // in δ (log scale as 7th)
-  if (!with_scale) cov7.row(6).setZero(), cov7.col(6).setZero();
+  const Matrix7d kinv = kmat.inverse();
+  const Matrix7d cov7 = kmat * cov_u * kmat.transpose();  // log scale as 7th variable
   res.covariance = cov7.topLeftCorner<6, 6>();
-
-  // Information of the 6x6 marginal, with no information along unobservable directions.
-  const Matrix6d k6 = centroidToOrigin(c, rho).topLeftCorner<6, 6>();
-  const Matrix6d k6inv = k6.inverse();
-  Matrix6d cov6_u = k6inv * res.covariance * k6inv.transpose();
-  Matrix6d info6_u = cov6_u.inverse();
-  if (null_dirs.cols() > 0) {
-    Matrix6d p = Matrix6d::Identity();
-    for (Eigen::Index k = 0; k < null_dirs.cols(); ++k) {
-      const Vector6d v = null_dirs.col(k).head<6>();
-      if (v.squaredNorm() > 1e-12) p -= v.normalized() * v.normalized().transpose();
-    }
-    info6_u = p * info6_u * p;
+  const Matrix7d info7 = kinv.transpose() * info_u * kinv;
+  res.information = info7.topLeftCorner<6, 6>();
+  if (with_scale && info7(6, 6) > 0.0) {
+    res.information -= info7.block<6, 1>(0, 6) * info7.block<1, 6>(6, 0) / info7(6, 6);
   }
-  res.information = k6inv.transpose() * info6_u * k6inv;
   res.information = 0.5 * (res.information + res.information.transpose()).eval();
 
   if (with_scale) {

@@ -1,6 +1,7 @@
 #include "pcr_pro/core/scale_detection.h"
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/LU>
 
 #include <algorithm>
 #include <cmath>
@@ -28,9 +29,33 @@ CloudExtent robustExtent(const Cloud& cloud, double trim_fraction) {
     throw InputError("scale_detection.trim_fraction must be in [0, 0.45]");
   }
   CloudExtent e;
-  e.centroid = cloud.rowwise().mean();
+  const Eigen::Index n = cloud.cols();
+  // Robust centre and axes: coordinate-wise median, then PCA over the points nearest to it
+  // (all but the farthest 2 * trim_fraction), so far outliers cannot turn the axes.
+  std::vector<double> tmp(static_cast<std::size_t>(n));
+  Eigen::Vector3d median;
+  for (int k = 0; k < 3; ++k) {
+    for (Eigen::Index i = 0; i < n; ++i) tmp[static_cast<std::size_t>(i)] = cloud(k, i);
+    std::nth_element(tmp.begin(), tmp.begin() + n / 2, tmp.end());
+    median(k) = tmp[static_cast<std::size_t>(n / 2)];
+  }
+  const Eigen::VectorXd dist = (cloud.colwise() - median).colwise().norm().transpose();
+  std::copy(dist.data(), dist.data() + n, tmp.begin());
+  const auto keep_n = std::max<Eigen::Index>(1, static_cast<Eigen::Index>((1.0 - 2.0 * trim_fraction) * n));
+  std::nth_element(tmp.begin(), tmp.begin() + (keep_n - 1), tmp.end());
+  const double radius = tmp[static_cast<std::size_t>(keep_n - 1)];
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d sq = Eigen::Matrix3d::Zero();
+  Eigen::Index used = 0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (dist(i) > radius) continue;
+    sum += cloud.col(i);
+    sq += cloud.col(i) * cloud.col(i).transpose();
+    ++used;
+  }
+  e.centroid = sum / static_cast<double>(used);
+  const Eigen::Matrix3d cov = sq / static_cast<double>(used) - e.centroid * e.centroid.transpose();
   const Cloud centred = cloud.colwise() - e.centroid;
-  const Eigen::Matrix3d cov = centred * centred.transpose() / static_cast<double>(cloud.cols());
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
   // Eigen sorts eigenvalues ascending: reverse so the largest axis comes first.
   for (int k = 0; k < 3; ++k) e.axes.col(k) = eig.eigenvectors().col(2 - k);

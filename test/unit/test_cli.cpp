@@ -1,0 +1,119 @@
+// Drives the pcr_pro_icp executable: exit statuses and one-line errors of the contract.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "pcr_pro/core/cloud_io.h"
+#include "test_helpers.h"
+
+namespace pcr_pro {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct CliRun {
+  int status = -1;
+  std::string out, err;
+};
+
+CliRun runIcp(const std::string& args) {
+  const fs::path tmp = fs::temp_directory_path() / ("pcr_pro_cli_" + std::to_string(::getpid()));
+  fs::create_directories(tmp);
+  const std::string out = (tmp / "out.txt").string(), err = (tmp / "err.txt").string();
+  const std::string cmd = std::string(PCR_PRO_ICP_BIN) + " " + args + " >" + out + " 2>" + err;
+  const int raw = std::system(cmd.c_str());
+  CliRun r;
+  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
+  std::ifstream o(out), e(err);
+  r.out.assign(std::istreambuf_iterator<char>(o), {});
+  r.err.assign(std::istreambuf_iterator<char>(e), {});
+  return r;
+}
+
+fs::path tempFile(const std::string& name, const std::string& content) {
+  const fs::path dir = fs::temp_directory_path() / ("pcr_pro_cli_data_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const fs::path p = dir / name;
+  std::ofstream(p, std::ios::binary) << content;
+  return p;
+}
+
+void expectInputError(const CliRun& r, const std::string& file) {
+  EXPECT_EQ(r.status, 2) << r.err;
+  EXPECT_NE(r.err.find(file), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "not one line: " << r.err;
+}
+
+const std::string kCar400 = test::dataPath("libpointmatcher_car/car_cloud400.csv");
+
+TEST(Cli, MissingFile) {
+  expectInputError(runIcp("--source /nonexistent/a.pcd --target " + kCar400), "/nonexistent/a.pcd");
+}
+
+TEST(Cli, UnreadableFile) {
+  const fs::path p = tempFile("unreadable.pcd", "x");
+  fs::permissions(p, fs::perms::none);
+  const bool root = ::geteuid() == 0;  // root reads anything: use a directory instead
+  const std::string path = root ? p.parent_path().string() : p.string();
+  expectInputError(runIcp("--source " + path + " --target " + kCar400), path);
+}
+
+TEST(Cli, EmptyFile) {
+  const fs::path p = tempFile("empty.pcd", "");
+  expectInputError(runIcp("--source " + p.string() + " --target " + kCar400), p.string());
+  const fs::path q = tempFile("empty.csv", "x,y,z\n");
+  expectInputError(runIcp("--source " + kCar400 + " --target " + q.string()), q.string());
+}
+
+TEST(Cli, AllNanCloud) {
+  const fs::path p = tempFile("nan.pcd",
+                              "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\n"
+                              "POINTS 2\nDATA ascii\nnan nan nan\nnan 1 2\n");
+  const CliRun r = runIcp("--source " + p.string() + " --target " + kCar400);
+  expectInputError(r, p.string());
+  EXPECT_NE(r.err.find("NaN"), std::string::npos);
+}
+
+TEST(Cli, GarbageAndTruncatedFiles) {
+  const fs::path g = tempFile("garbage.pcd", std::string("\x01\x02garbage\xff\n", 12));
+  expectInputError(runIcp("--source " + g.string() + " --target " + kCar400), g.string());
+  const fs::path t = tempFile("truncated.pcd",
+                              "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 100\nHEIGHT 1\n"
+                              "POINTS 100\nDATA binary\n0123456789");
+  expectInputError(runIcp("--source " + t.string() + " --target " + kCar400), t.string());
+}
+
+TEST(Cli, BadUsage) {
+  EXPECT_EQ(runIcp("--source " + kCar400).status, 2);
+  EXPECT_EQ(runIcp("--source " + kCar400 + " --target " + kCar400 + " --bogus").status, 2);
+  EXPECT_EQ(runIcp("--source " + kCar400 + " --target " + kCar400 + " --initial \"1 2 3\"").status, 2);
+  const fs::path cfg = tempFile("bad.yaml", "icp:\n  stop:\n    max_iterations: -1\n");
+  expectInputError(runIcp("--source " + kCar400 + " --target " + kCar400 + " --config " + cfg.string()), cfg.string());
+  EXPECT_EQ(runIcp("--help").status, 0);
+}
+
+TEST(Cli, RegistersRealScansAndWritesOutputs) {
+  const fs::path out = fs::temp_directory_path() / ("pcr_pro_cli_out_" + std::to_string(::getpid()));
+  fs::remove_all(out);
+  const CliRun r = runIcp("--source " + test::dataPath("libpointmatcher_car/car_cloud401.csv") + " --target " + kCar400 +
+                       " --output " + out.string());
+  ASSERT_EQ(r.status, 0) << r.err << r.out;
+  EXPECT_NE(r.out.find("status: OK"), std::string::npos);
+  for (const char* key : {"scale:", "rotation:", "translation:", "covariance:", "information:", "fitness_rmse:",
+                          "correspondences:", "timings_ms:"}) {
+    EXPECT_NE(r.out.find(key), std::string::npos) << key;
+  }
+  std::ifstream yaml(out / "result.yaml");
+  const std::string written((std::istreambuf_iterator<char>(yaml)), {});
+  EXPECT_EQ(written, r.out);
+  const Cloud fused = readPcd((out / "fused.pcd").string());
+  EXPECT_EQ(fused.cols(), readCloud(kCar400).cols() + readCloud(test::dataPath("libpointmatcher_car/car_cloud401.csv")).cols());
+}
+
+}  // namespace
+}  // namespace pcr_pro

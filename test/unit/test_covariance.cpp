@@ -1,0 +1,186 @@
+#include <gtest/gtest.h>
+
+#include <Eigen/LU>
+
+#include "pcr_pro/core/covariance.h"
+#include "pcr_pro/core/icp.h"
+#include "pcr_pro/core/kdtree.h"
+#include "pcr_pro/core/normals.h"
+#include "test_helpers.h"
+
+namespace pcr_pro {
+namespace {
+
+Correspondences pairs(const Cloud& source, const Cloud& target) {
+  Correspondences c;
+  c.source = source;
+  c.target = target;
+  return c;
+}
+
+// Left-perturbation error δ = (δt, δω) with T_est = exp(δ) T_true, to first order.
+Vector6d poseError(const Sim3& est, const Sim3& truth) {
+  const Eigen::Matrix3d dr = est.rotation() * truth.rotation().transpose();
+  const Eigen::AngleAxisd aa(dr);
+  Vector6d d;
+  d.head<3>() = est.translation() - (est.scale() / truth.scale()) * dr * truth.translation();
+  d.tail<3>() = aa.angle() * aa.axis();
+  return d;
+}
+
+TEST(Covariance, ZeroResidualPointToPointMatchesClosedForm) {
+  std::mt19937 rng(1);
+  const Cloud x = test::syntheticScene(800, 3.0, rng);
+  const Sim3 s(1.0, test::randomRotation(rng, 0.7), Eigen::Vector3d(2.0, -1.0, 4.0));
+  const Cloud y = s.apply(x);
+  CovarianceOptions o;
+  o.sensor_noise_stddev = 0.01;
+  const CovarianceResult r = computeIcpCovariance(pairs(x, y), s, ErrorMetric::kPointToPoint, false, o);
+  ASSERT_EQ(r.status, Status::kOk) << r.message;
+  Matrix6d sum = Matrix6d::Zero();
+  for (int i = 0; i < y.cols(); ++i) {
+    Eigen::Matrix<double, 3, 6> a;
+    a << Eigen::Matrix3d::Identity(), -skew(y.col(i));
+    sum += a.transpose() * a;
+  }
+  const Matrix6d expected = 2.0 * 0.01 * 0.01 * sum.inverse();
+  EXPECT_LT((r.covariance - expected).norm() / expected.norm(), 1e-9);
+  EXPECT_LT((r.information * r.covariance - Matrix6d::Identity()).norm(), 1e-6);
+  EXPECT_NEAR(r.noise_stddev, 0.01, 1e-15);
+}
+
+TEST(Covariance, ZeroResidualPointToPlaneMatchesClosedForm) {
+  std::mt19937 rng(2);
+  const Cloud x = test::syntheticScene(800, 3.0, rng);
+  const Sim3 s(1.0, test::randomRotation(rng, 0.4), Eigen::Vector3d(-1.0, 0.5, 2.0));
+  Correspondences c = pairs(x, s.apply(x));
+  KdTree tree(c.target);
+  c.target_normals = estimateNormals(tree, 10);
+  CovarianceOptions o;
+  o.sensor_noise_stddev = 0.02;
+  const CovarianceResult r = computeIcpCovariance(c, s, ErrorMetric::kPointToPlane, false, o);
+  ASSERT_EQ(r.status, Status::kOk) << r.message;
+  Matrix6d sum = Matrix6d::Zero();
+  for (int i = 0; i < x.cols(); ++i) {
+    Vector6d a;
+    a << c.target_normals.col(i), Eigen::Vector3d(c.target.col(i)).cross(Eigen::Vector3d(c.target_normals.col(i)));
+    sum += a * a.transpose();
+  }
+  const Matrix6d expected = 2.0 * 0.02 * 0.02 * sum.inverse();
+  EXPECT_LT((r.covariance - expected).norm() / expected.norm(), 1e-9);
+}
+
+TEST(Covariance, MonteCarloNeesIsConsistentWithKnownCorrespondences) {
+  std::mt19937 rng(3);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  const double sigma = 0.01;
+  const Cloud x = test::syntheticScene(400, 2.0, rng);
+  const Sim3 truth(1.0, test::randomRotation(rng, 0.5), Eigen::Vector3d(0.5, 1.0, -0.3));
+  const Cloud y_true = truth.apply(x);
+  CovarianceOptions o;
+  o.sensor_noise_stddev = sigma;
+  const int trials = 200;
+  double nees_sum = 0.0, nees_rot = 0.0, nees_trans = 0.0;
+  for (int t = 0; t < trials; ++t) {
+    Cloud xs = x, yt = y_true;
+    for (int i = 0; i < x.cols(); ++i) {
+      xs.col(i) += sigma * Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+      yt.col(i) += sigma * Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+    }
+    const Sim3 est = umeyama(xs, yt, false);
+    const CovarianceResult r = computeIcpCovariance(pairs(xs, yt), est, ErrorMetric::kPointToPoint, false, o);
+    ASSERT_EQ(r.status, Status::kOk);
+    const Vector6d d = poseError(est, truth);
+    nees_sum += d.dot(r.covariance.ldlt().solve(d));
+    nees_trans += d.head<3>().dot(r.covariance.topLeftCorner<3, 3>().ldlt().solve(d.head<3>()));
+    nees_rot += d.tail<3>().dot(r.covariance.bottomRightCorner<3, 3>().ldlt().solve(d.tail<3>()));
+  }
+  // Mean of 200 χ²(6) values: 95 % band [5.53, 6.49]; χ²(3) blocks: [2.66, 3.34].
+  EXPECT_GT(nees_sum / trials, 5.53);
+  EXPECT_LT(nees_sum / trials, 6.49);
+  EXPECT_GT(nees_trans / trials, 2.66);
+  EXPECT_LT(nees_trans / trials, 3.34);
+  EXPECT_GT(nees_rot / trials, 2.66);
+  EXPECT_LT(nees_rot / trials, 3.34);
+}
+
+TEST(Covariance, MonteCarloNeesWithScaleAndEstimatedNoise) {
+  // Similarity with the noise estimated from the residuals: 7-DoF NEES of the mean over 200
+  // trials inside the 95 % band of χ²(7)/200 ([6.48, 7.52]).
+  std::mt19937 rng(4);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  const double sigma = 0.005;  // target units; the source noise is sigma / scale in source units
+  const Cloud x = test::syntheticScene(500, 2.0, rng);
+  const Sim3 truth(2.5, test::randomRotation(rng, 0.9), Eigen::Vector3d(-2.0, 0.3, 1.0));
+  const Cloud y_true = truth.apply(x);
+  const int trials = 200;
+  double nees_sum = 0.0;
+  for (int t = 0; t < trials; ++t) {
+    Cloud xs = x, yt = y_true;
+    for (int i = 0; i < x.cols(); ++i) {
+      xs.col(i) += (sigma / truth.scale()) * Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+      yt.col(i) += sigma * Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+    }
+    const Sim3 est = umeyama(xs, yt, true);
+    const CovarianceResult r =
+        computeIcpCovariance(pairs(xs, yt), est, ErrorMetric::kPointToPoint, true, CovarianceOptions());
+    ASSERT_EQ(r.status, Status::kOk);
+    EXPECT_NEAR(r.noise_stddev, sigma, 0.1 * sigma);
+    Eigen::Matrix<double, 7, 1> d;
+    d << poseError(est, truth), est.scale() - truth.scale();
+    nees_sum += d.dot(r.covariance7.ldlt().solve(d));
+  }
+  EXPECT_GT(nees_sum / trials, 6.48);
+  EXPECT_LT(nees_sum / trials, 7.52);
+}
+
+TEST(Covariance, PlanarCloudIsDegenerate) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::normal_distribution<double> noise(0.0, 0.001);
+  Cloud target(3, 2000), source(3, 2000);
+  for (int i = 0; i < 2000; ++i) {
+    target.col(i) << u(rng), u(rng), noise(rng);
+    source.col(i) << u(rng), u(rng), noise(rng);
+  }
+  for (ErrorMetric metric : {ErrorMetric::kPointToPlane, ErrorMetric::kPointToPoint}) {
+    IcpOptions io;
+    io.error_metric = metric;
+    const IcpResult icp = alignIcp(source, target, Sim3(1.0, Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, 0.01)), io);
+    // ICP may slide along the plane without settling; the covariance at its final matches is
+    // what must flag the unobservable directions.
+    ASSERT_GT(icp.correspondences, 1000) << icp.message;
+    const CovarianceResult r =
+        computeIcpCovariance(icp.matches, icp.transform, metric, false, CovarianceOptions());
+    EXPECT_EQ(r.status, Status::kDegenerate) << errorMetricName(metric) << ": " << r.message;
+    EXPECT_GT(r.condition_number, CovarianceOptions().degeneracy_condition_threshold);
+    // (Almost) no information along in-plane translation or about the plane normal; plenty
+    // along z and the tilts. The null directions come from noisy normals, so they are not
+    // exactly axis-aligned: small leftovers remain.
+    EXPECT_LT(r.information(0, 0), 1e-4 * r.information(2, 2));
+    EXPECT_LT(r.information(1, 1), 1e-4 * r.information(2, 2));
+    EXPECT_LT(r.information(5, 5), 1e-4 * r.information(3, 3));
+    EXPECT_GT(r.covariance(0, 0), 1e3 * r.covariance(2, 2));
+  }
+}
+
+TEST(Covariance, RealCarScanIsWellConditioned) {
+  // A non-degenerate real scene must not be flagged: the threshold has to separate it from a plane.
+  std::mt19937 rng(6);
+  const Cloud scene = test::syntheticScene(3000, 10.0, rng);
+  IcpOptions io;
+  const IcpResult icp = alignIcp(scene, scene, Sim3(), io);
+  ASSERT_EQ(icp.status, Status::kOk);
+  const CovarianceResult r = computeIcpCovariance(icp.matches, icp.transform, io.error_metric, false, CovarianceOptions());
+  EXPECT_EQ(r.status, Status::kOk) << r.message;
+  EXPECT_LT(r.condition_number, 1e3);
+}
+
+TEST(Covariance, TooFewCorrespondences) {
+  Correspondences c = pairs(Cloud::Random(3, 4), Cloud::Random(3, 4));
+  const CovarianceResult r = computeIcpCovariance(c, Sim3(), ErrorMetric::kPointToPoint, false, CovarianceOptions());
+  EXPECT_NE(r.status, Status::kOk);
+}
+
+}  // namespace
+}  // namespace pcr_pro

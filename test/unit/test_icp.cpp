@@ -1,0 +1,166 @@
+#include <gtest/gtest.h>
+
+#include "pcr_pro/core/cloud_io.h"
+#include "pcr_pro/core/icp.h"
+#include "test_helpers.h"
+
+namespace pcr_pro {
+namespace {
+
+struct Errors {
+  double rotation_deg, translation, scale_rel;
+};
+
+Errors compare(const Sim3& est, const Sim3& truth) {
+  return {test::deg(rotationDistance(est.rotation(), truth.rotation())), (est.translation() - truth.translation()).norm(),
+          std::abs(est.scale() / truth.scale() - 1.0)};
+}
+
+// Two independent samplings of the same scene with a little noise: the target in its frame,
+// the source expressed in a frame related by `truth` (target = truth(source)).
+void makePair(const Sim3& truth, int n, double size, unsigned seed, Cloud* source, Cloud* target) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0.0, 0.002 * size);
+  *target = test::syntheticScene(n, size, rng);
+  Cloud other = test::syntheticScene(n, size, rng);
+  for (int i = 0; i < other.cols(); ++i) other.col(i) += Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+  *source = truth.inverse().apply(other);
+}
+
+class SimilarityIcp : public ::testing::TestWithParam<std::tuple<double, ErrorMetric>> {};
+
+TEST_P(SimilarityIcp, RecoversScaleFromTenPercentFiveDegreeStart) {
+  const double scale = std::get<0>(GetParam());
+  std::mt19937 rng(static_cast<unsigned>(scale * 1000));
+  const double size = 4.0;
+  const Sim3 truth(scale, test::randomRotation(rng, test::rad(40)), Eigen::Vector3d(1.0, -2.0, 0.5));
+  Cloud source, target;
+  makePair(truth, 3000, size, 7 + static_cast<unsigned>(scale * 10), &source, &target);
+  // Start 10 % off in scale and 5 deg off in rotation (about the source centroid).
+  const Sim3 perturb(1.1, test::randomRotation(rng, test::rad(5)), Eigen::Vector3d::Zero());
+  const Eigen::Vector3d c = truth.apply(Eigen::Vector3d(source.rowwise().mean()));
+  const Sim3 about_c = Sim3(1, Eigen::Matrix3d::Identity(), c) * perturb * Sim3(1, Eigen::Matrix3d::Identity(), -c);
+  const Sim3 initial = about_c * truth;
+  IcpOptions o;
+  o.estimate_scale = true;
+  o.error_metric = std::get<1>(GetParam());
+  const IcpResult r = alignIcp(source, target, initial, o);
+  ASSERT_EQ(r.status, Status::kOk) << r.message;
+  const Errors e = compare(r.transform, truth);
+  const Errors e0 = compare(initial, truth);
+  // Point-to-point on two independent sparse samplings keeps a sampling bias (it settles on a
+  // fixed point up to ~0.6 deg off here), hence its looser bound; point-to-plane does not.
+  const bool p2p = o.error_metric == ErrorMetric::kPointToPoint;
+  EXPECT_LT(e.rotation_deg, p2p ? 1.0 : 0.3) << "start " << e0.rotation_deg << ", iterations " << r.iterations;
+  EXPECT_LT(e.scale_rel, 0.005) << "start " << e0.scale_rel;
+  EXPECT_LT(e.translation, 0.005 * size) << "start " << e0.translation;
+}
+
+INSTANTIATE_TEST_SUITE_P(Scales, SimilarityIcp,
+                         ::testing::Combine(::testing::Values(0.2, 0.5, 1.0, 2.0, 5.0),
+                                            ::testing::Values(ErrorMetric::kPointToPoint, ErrorMetric::kPointToPlane)));
+
+class RigidIcp : public ::testing::TestWithParam<std::tuple<double, ErrorMetric>> {};
+
+TEST_P(RigidIcp, RecoversRotationFromIdentity) {
+  const double angle = std::get<0>(GetParam());
+  std::mt19937 rng(static_cast<unsigned>(angle * 17));
+  const double size = 4.0;
+  const Sim3 truth(1.0, test::randomRotation(rng, test::rad(angle)), Eigen::Vector3d(0.1, -0.15, 0.05));
+  Cloud source, target;
+  makePair(truth, 3000, size, 11 + static_cast<unsigned>(angle), &source, &target);
+  IcpOptions o;
+  o.error_metric = std::get<1>(GetParam());
+  const IcpResult r = alignIcp(source, target, Sim3::identity(), o);
+  ASSERT_EQ(r.status, Status::kOk) << r.message;
+  const Errors e = compare(r.transform, truth);
+  EXPECT_LT(e.rotation_deg, 0.3);
+  EXPECT_LT(e.translation, 0.005 * size);
+  EXPECT_DOUBLE_EQ(r.transform.scale(), 1.0);
+}
+
+INSTANTIATE_TEST_SUITE_P(Angles, RigidIcp,
+                         ::testing::Combine(::testing::Values(5.0, 15.0, 30.0),
+                                            ::testing::Values(ErrorMetric::kPointToPoint, ErrorMetric::kPointToPlane)));
+
+TEST(Icp, RealCarScansFromIdentityMatchGroundTruth) {
+  const Cloud target = readCloud(test::dataPath("libpointmatcher_car/car_cloud400.csv"));
+  const Cloud source = readCloud(test::dataPath("libpointmatcher_car/car_cloud401.csv"));
+  const Sim3 truth = test::carGroundTruth();
+  for (ErrorMetric metric : {ErrorMetric::kPointToPlane, ErrorMetric::kPointToPoint}) {
+    IcpOptions o;
+    o.error_metric = metric;
+    // Point-to-point from identity needs a looser trim on this pair: with the default 0.8 it
+    // settles 1.5 deg off (a reason the default metric is point-to-plane).
+    if (metric == ErrorMetric::kPointToPoint) o.trim_ratio = 0.9;
+    const IcpResult r = alignIcp(source, target, Sim3::identity(), o);
+    ASSERT_EQ(r.status, Status::kOk) << errorMetricName(metric) << ": " << r.message;
+    const Errors e = compare(r.transform, truth);
+    EXPECT_LT(e.rotation_deg, 0.2) << errorMetricName(metric);
+    EXPECT_LT(e.translation, 0.05) << errorMetricName(metric);
+    EXPECT_GT(r.correspondences, 15000);
+  }
+}
+
+TEST(Icp, RealCarScanWithKnownSimilarity) {
+  // A known scale / rotation / translation applied to a real scan: ICP with scale from a start
+  // 10 % / 5 deg away recovers it.
+  const Cloud target = readCloud(test::dataPath("libpointmatcher_car/car_cloud400.csv"));
+  std::mt19937 rng(5);
+  const Sim3 truth(0.4, test::randomRotation(rng, test::rad(60)), Eigen::Vector3d(3, -1, 2));
+  const Cloud source = truth.inverse().apply(target);
+  const Sim3 initial = Sim3(1.1, test::randomRotation(rng, test::rad(5)), Eigen::Vector3d::Zero()) * truth;
+  IcpOptions o;
+  o.estimate_scale = true;
+  const IcpResult r = alignIcp(source, target, initial, o);
+  ASSERT_EQ(r.status, Status::kOk) << r.message;
+  const Errors e = compare(r.transform, truth);
+  EXPECT_LT(e.rotation_deg, 0.05);
+  EXPECT_LT(e.scale_rel, 1e-3);
+  EXPECT_LT(e.translation, 0.05);
+}
+
+TEST(Icp, ScaleStaysWithinBounds) {
+  // Source much smaller than the target with scale estimation on: the scale may not leave the
+  // configured band around the initial guess.
+  std::mt19937 rng(9);
+  const Cloud target = test::syntheticScene(1000, 4.0, rng);
+  const Cloud source = 0.1 * test::syntheticScene(1000, 4.0, rng);
+  IcpOptions o;
+  o.estimate_scale = true;
+  o.min_scale_ratio = 0.8;
+  o.max_scale_ratio = 1.25;
+  const IcpResult r = alignIcp(source, target, Sim3::identity(), o);
+  EXPECT_GE(r.transform.scale(), 0.8 - 1e-12);
+  EXPECT_LE(r.transform.scale(), 1.25 + 1e-12);
+}
+
+TEST(Icp, TooFewCorrespondencesIsReported) {
+  Cloud source = Cloud::Random(3, 5), target = Cloud::Random(3, 5);
+  IcpOptions o;
+  o.min_correspondences = 10;
+  const IcpResult r = alignIcp(source, target, Sim3::identity(), o);
+  EXPECT_EQ(r.status, Status::kIcpNotConverged);
+  EXPECT_FALSE(r.message.empty());
+}
+
+TEST(Icp, InvalidOptionsAndEmptyCloudsThrow) {
+  Cloud c = Cloud::Random(3, 20);
+  IcpOptions o;
+  o.trim_ratio = 0.0;
+  EXPECT_THROW(alignIcp(c, c, Sim3(), o), InputError);
+  EXPECT_THROW(alignIcp(Cloud(3, 0), c, Sim3(), IcpOptions()), InputError);
+}
+
+TEST(Icp, UmeyamaIsExactOnNoiselessPairs) {
+  std::mt19937 rng(12);
+  const Cloud src = Cloud::Random(3, 30);
+  const Sim3 truth(2.5, test::randomRotation(rng, 1.0), Eigen::Vector3d(1, 2, 3));
+  const Sim3 est = umeyama(src, truth.apply(src), true);
+  EXPECT_NEAR(est.scale(), 2.5, 1e-10);
+  EXPECT_LT(rotationDistance(est.rotation(), truth.rotation()), 1e-10);
+  EXPECT_LT((est.translation() - truth.translation()).norm(), 1e-9);
+}
+
+}  // namespace
+}  // namespace pcr_pro
