@@ -2,7 +2,8 @@
 #   make demo   install missing Debian packages, build, run the main job on shipped data
 #   make test   install missing Debian packages, build, run all tests (ctest)
 #   make build  configure (once) and build only
-#   make bench  build and run the benchmarks
+#   make bench  build and run the benchmarks (BENCH_ARGS=--quick for a short run)
+#   make bundles  regenerate the two-agent test bundles in test/data/bundles
 # Debian's /usr/bin comes first on PATH: a pyenv python3 would break catkin.
 SHELL := /bin/bash
 export PATH := /usr/bin:/bin:/usr/sbin:/sbin:$(PATH)
@@ -11,7 +12,7 @@ BUILD_DIR ?= build
 BUILD_TYPE ?= Release
 JOBS ?= 2
 
-.PHONY: all deps configure build test demo bench clean
+.PHONY: all deps configure build test demo bench bundles clean
 
 all: build
 
@@ -37,7 +38,11 @@ demo: deps
 bench:
 	@scripts/install_deps.sh bench
 	@$(MAKE) --no-print-directory build
-	scripts/bench.sh $(BUILD_DIR)
+	scripts/bench.sh $(BUILD_DIR) $(BENCH_ARGS)
+
+bundles:
+	@scripts/install_deps.sh bundles
+	/usr/bin/python3 scripts/make_bundles.py
 
 clean:
 	rm -rf $(BUILD_DIR)

@@ -3,9 +3,10 @@
 # Idempotent: asks apt only for packages that are not installed yet, and runs
 # `apt-get update` only when something is missing. Must run as root (or via sudo).
 #
-# Usage: scripts/install_deps.sh [build|bench]
+# Usage: scripts/install_deps.sh [build|bench|bundles]
 #   build (default)  everything `make build`, `make test` and `make demo` need
 #   bench            additionally what `make bench` needs
+#   bundles          additionally what scripts/make_bundles.py needs (Debian's Python 3)
 set -euo pipefail
 
 profile="${1:-build}"
@@ -16,13 +17,16 @@ packages=(
   # catkin (devel space, package.xml handling) and its Python side
   catkin python3-catkin-pkg
   # core library
-  libeigen3-dev libpcl-dev libnanoflann-dev libyaml-cpp-dev libopencv-dev libopengv-dev
+  libeigen3-dev libnanoflann-dev libyaml-cpp-dev libopencv-dev libopengv-dev
   # tests
   libgtest-dev
 )
-if [ "$profile" = "bench" ]; then
-  packages+=(libbenchmark-dev)
-fi
+case "$profile" in
+  build) ;;
+  bench) packages+=(libpcl-dev) ;;
+  bundles) packages+=(python3 python3-numpy python3-opencv python3-yaml) ;;
+  *) echo "install_deps: unknown profile '$profile' (build|bench|bundles)" >&2; exit 2 ;;
+esac
 
 missing=()
 for p in "${packages[@]}"; do

@@ -66,7 +66,7 @@ CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3
 
   // Normals for the observability analysis: the ICP's own, or estimated on the matched targets.
   Cloud normals;
-  if (plane) {
+  if (matches.target_normals.cols() == n) {
     normals = matches.target_normals;
   } else {
     KdTree tree(matches.target);

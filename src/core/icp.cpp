@@ -245,7 +245,14 @@ IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial
   Correspondences& c = result.matches;
   c.source.resize(3, static_cast<Eigen::Index>(m.size()));
   c.target.resize(3, static_cast<Eigen::Index>(m.size()));
-  if (need_normals) c.target_normals.resize(3, static_cast<Eigen::Index>(m.size()));
+  c.target_normals.resize(3, static_cast<Eigen::Index>(m.size()));
+  if (!need_normals) {
+    // The covariance's observability check needs target normals: estimate them at the matched
+    // target points only, on the full target tree.
+    std::vector<Eigen::Index> matched(m.size());
+    for (std::size_t k = 0; k < m.size(); ++k) matched[k] = m[k].target;
+    c.target_normals = estimateNormalsAt(tree, matched, o.normal_neighbors);
+  }
   double sum_d2 = 0.0;
   for (std::size_t k = 0; k < m.size(); ++k) {
     const auto col = static_cast<Eigen::Index>(k);

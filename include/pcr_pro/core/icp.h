@@ -59,7 +59,9 @@ void validate(const IcpOptions& options);
 struct Correspondences {
   Cloud source;          ///< matched source points, in the source frame [source units]
   Cloud target;          ///< matched target points, in the target frame [target units]
-  Cloud target_normals;  ///< unit normals at the target points (empty when not estimated)
+  /// Unit normals at the target points (from the target's k nearest neighbours); may be empty
+  /// when built by hand, then the covariance estimates them on the matched targets.
+  Cloud target_normals;
 };
 
 /// Outcome of an ICP run.

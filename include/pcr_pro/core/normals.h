@@ -4,6 +4,8 @@
  */
 #pragma once
 
+#include <vector>
+
 #include "pcr_pro/core/kdtree.h"
 #include "pcr_pro/core/types.h"
 
@@ -17,5 +19,14 @@ namespace pcr_pro {
  * @return one unit (or zero) normal per point, sign arbitrary
  */
 Cloud estimateNormals(const KdTree& tree, int k);
+
+/**
+ * @brief Like estimateNormals(), for selected points of the tree only.
+ * @param[in] tree k-d tree over the cloud
+ * @param[in] indices points (columns of tree.points()) to estimate normals for
+ * @param[in] k neighbours used (>= 3)
+ * @return one normal per index, in the same order
+ */
+Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k);
 
 }  // namespace pcr_pro
