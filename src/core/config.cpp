@@ -1,5 +1,7 @@
 #include "pcr_pro/core/config.h"
 
+#include "yaml_block.h"
+
 #include <yaml-cpp/yaml.h>
 
 #include <fstream>
@@ -8,70 +10,8 @@
 #include <utility>
 
 namespace pcr_pro {
+namespace config_detail {
 namespace {
-
-// Reads the keys of one YAML block into an options struct, tracking the dotted key path for
-// error messages and rejecting keys the block does not know.
-class Block {
- public:
-  Block(const YAML::Node& node, std::string path, std::string origin)
-      : node_(node), path_(std::move(path)), origin_(std::move(origin)) {
-    if (node_ && !node_.IsNull() && !node_.IsMap()) fail(path_, "must be a map");
-  }
-
-  // Key path of a child for messages: "a.b", or "b" at the top level.
-  std::string keyPath(const std::string& key) const { return path_.empty() ? key : path_ + "." + key; }
-
-  template <typename T>
-  void get(const std::string& key, T* value) {
-    known_.insert(key);
-    if (!node_ || node_.IsNull()) return;
-    const YAML::Node v = node_[key];
-    if (!v) return;
-    try {
-      *value = v.as<T>();
-    } catch (const YAML::Exception&) {
-      fail(keyPath(key), "has the wrong type");
-    }
-  }
-
-  YAML::Node child(const std::string& key) {
-    known_.insert(key);
-    if (!node_ || node_.IsNull()) return YAML::Node();
-    return node_[key];
-  }
-
-  void finish() const {
-    if (!node_ || node_.IsNull()) return;
-    for (const auto& kv : node_) {
-      const std::string key = kv.first.as<std::string>();
-      if (!known_.count(key)) fail(keyPath(key), "unknown key");
-    }
-  }
-
-  [[noreturn]] void fail(const std::string& key, const std::string& what) const {
-    throw InputError(origin_ + ": " + key + ": " + what);
-  }
-
-  const std::string& path() const { return path_; }
-  const std::string& origin() const { return origin_; }
-
- private:
-  YAML::Node node_;
-  std::string path_;
-  std::string origin_;
-  std::set<std::string> known_;
-};
-
-// Runs a validate() and prefixes its message with the origin.
-template <typename T>
-void validateIn(const T& options, const std::string& origin) {
-  try {
-    validate(options);
-  } catch (const InputError& e) {
-    throw InputError(origin + ": " + e.what());
-  }
-}
 
 ScaleDetectionOptions loadScaleDetection(const YAML::Node& node, const std::string& origin) {
   ScaleDetectionOptions o;
@@ -121,9 +61,13 @@ FilterChainOptions loadFilters(const YAML::Node& node, const std::string& origin
       step.type = FilterStep::Type::kRandomSampling;
       b.get("keep_ratio", &step.random_sampling.keep_ratio);
       b.get("seed", &step.random_sampling.seed);
+    } else if (type == "max_points") {
+      step.type = FilterStep::Type::kMaxPoints;
+      b.get("max_points", &step.max_points.max_points);
+      b.get("seed", &step.max_points.seed);
     } else {
       throw InputError(origin + ": " + where + ": unknown filter type '" + type +
-                       "' (crop, voxel_grid, outlier_removal, random_sampling)");
+                       "' (crop, voxel_grid, outlier_removal, random_sampling, max_points)");
     }
     b.finish();
     try {
@@ -190,6 +134,32 @@ CovarianceOptions loadCovariance(const YAML::Node& node, const std::string& orig
 
 }  // namespace
 
+YAML::Node parseYaml(const std::string& text, const std::string& origin) {
+  try {
+    return YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw InputError(origin + ": invalid YAML at line " + std::to_string(e.mark.line + 1) + ": " + e.msg);
+  }
+}
+
+std::string readConfigFile(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw InputError(path + ": cannot open configuration file");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void loadRegistrationBlocks(Block* top, RegistrationOptions* o) {
+  const std::string& origin = top->origin();
+  o->scale_detection = loadScaleDetection(top->child("scale_detection"), origin);
+  o->filters = loadFilters(top->child("filters"), origin);
+  o->icp = loadIcp(top->child("icp"), origin);
+  o->covariance = loadCovariance(top->child("covariance"), origin);
+}
+
+}  // namespace config_detail
+
 void validate(const RegistrationOptions& o) {
   if (!(o.scale_detection.trim_fraction >= 0.0 && o.scale_detection.trim_fraction <= 0.45)) {
     throw InputError("scale_detection.trim_fraction must be in [0, 0.45]");
@@ -201,21 +171,14 @@ void validate(const RegistrationOptions& o) {
 }
 
 RegistrationOptions parseRegistrationConfig(const std::string& text, const std::string& origin) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(text);
-  } catch (const YAML::Exception& e) {
-    throw InputError(origin + ": invalid YAML at line " + std::to_string(e.mark.line + 1) + ": " + e.msg);
-  }
+  using namespace config_detail;
+  const YAML::Node root = parseYaml(text, origin);
   RegistrationOptions o;
   if (!root || root.IsNull()) return o;
   if (!root.IsMap()) throw InputError(origin + ": top level must be a map");
-  Block top(root, "", origin);
   try {
-    o.scale_detection = loadScaleDetection(top.child("scale_detection"), origin);
-    o.filters = loadFilters(top.child("filters"), origin);
-    o.icp = loadIcp(top.child("icp"), origin);
-    o.covariance = loadCovariance(top.child("covariance"), origin);
+    Block top(root, "", origin);
+    loadRegistrationBlocks(&top, &o);
     top.finish();
   } catch (const YAML::Exception& e) {
     throw InputError(origin + ": malformed configuration: " + e.msg);
@@ -224,11 +187,7 @@ RegistrationOptions parseRegistrationConfig(const std::string& text, const std::
 }
 
 RegistrationOptions loadRegistrationConfig(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw InputError(path + ": cannot open configuration file");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return parseRegistrationConfig(ss.str(), path);
+  return parseRegistrationConfig(config_detail::readConfigFile(path), path);
 }
 
 }  // namespace pcr_pro

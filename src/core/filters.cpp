@@ -24,6 +24,7 @@ const char* filterTypeName(FilterStep::Type type) {
     case FilterStep::Type::kVoxelGrid: return "voxel_grid";
     case FilterStep::Type::kOutlierRemoval: return "outlier_removal";
     case FilterStep::Type::kRandomSampling: return "random_sampling";
+    case FilterStep::Type::kMaxPoints: return "max_points";
   }
   return "unknown";
 }
@@ -42,6 +43,9 @@ void validate(const OutlierRemovalOptions& o) {
 void validate(const RandomSamplingOptions& o) {
   if (!(o.keep_ratio > 0.0 && o.keep_ratio <= 1.0)) throw InputError("random_sampling.keep_ratio must be in (0, 1]");
 }
+void validate(const MaxPointsOptions& o) {
+  if (o.max_points < 0) throw InputError("max_points.max_points must be >= 0");
+}
 void validate(const FilterChainOptions& o) {
   for (const FilterStep& s : o.steps) {
     switch (s.type) {
@@ -49,6 +53,7 @@ void validate(const FilterChainOptions& o) {
       case FilterStep::Type::kVoxelGrid: validate(s.voxel_grid); break;
       case FilterStep::Type::kOutlierRemoval: validate(s.outlier_removal); break;
       case FilterStep::Type::kRandomSampling: validate(s.random_sampling); break;
+      case FilterStep::Type::kMaxPoints: validate(s.max_points); break;
     }
   }
 }
@@ -148,6 +153,23 @@ Cloud randomSamplingFilter(const Cloud& cloud, const RandomSamplingOptions& o) {
   return selectColumns(cloud, keep);
 }
 
+Cloud maxPointsFilter(const Cloud& cloud, const MaxPointsOptions& o) {
+  validate(o);
+  const Eigen::Index n = cloud.cols();
+  if (o.max_points == 0 || n <= o.max_points) return cloud;
+  // Partial Fisher-Yates: the first max_points entries become a uniform sample.
+  std::vector<Eigen::Index> order(static_cast<std::size_t>(n));
+  for (Eigen::Index i = 0; i < n; ++i) order[static_cast<std::size_t>(i)] = i;
+  std::mt19937 rng(o.seed);
+  for (int i = 0; i < o.max_points; ++i) {
+    std::uniform_int_distribution<Eigen::Index> pick(i, n - 1);
+    std::swap(order[static_cast<std::size_t>(i)], order[static_cast<std::size_t>(pick(rng))]);
+  }
+  order.resize(static_cast<std::size_t>(o.max_points));
+  std::sort(order.begin(), order.end());
+  return selectColumns(cloud, order);
+}
+
 Cloud applyFilterChain(const Cloud& cloud, const FilterChainOptions& options) {
   validate(options);
   Cloud out = cloud;
@@ -157,6 +179,7 @@ Cloud applyFilterChain(const Cloud& cloud, const FilterChainOptions& options) {
       case FilterStep::Type::kVoxelGrid: out = voxelGridFilter(out, s.voxel_grid); break;
       case FilterStep::Type::kOutlierRemoval: out = outlierRemovalFilter(out, s.outlier_removal); break;
       case FilterStep::Type::kRandomSampling: out = randomSamplingFilter(out, s.random_sampling); break;
+      case FilterStep::Type::kMaxPoints: out = maxPointsFilter(out, s.max_points); break;
     }
   }
   return out;

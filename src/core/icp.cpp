@@ -99,6 +99,36 @@ Sim3 pointToPlaneStep(const Cloud& moved, const Cloud& target, const Cloud& norm
   return Sim3(s, r, c - s * (r * c) + delta.head<3>());
 }
 
+// Target normals estimated on demand: only target points that get matched ever need one.
+class LazyNormals {
+ public:
+  LazyNormals(const KdTree& tree, int k)
+      : tree_(tree), k_(k), normals_(Cloud::Zero(3, tree.size())), known_(static_cast<std::size_t>(tree.size()), 0) {}
+
+  // Makes sure every matched target point has its normal.
+  void ensure(const std::vector<Match>& matches) {
+    std::vector<Eigen::Index> missing;
+    for (const Match& m : matches) {
+      char& known = known_[static_cast<std::size_t>(m.target)];
+      if (!known) {
+        known = 1;
+        missing.push_back(m.target);
+      }
+    }
+    if (missing.empty()) return;
+    const Cloud fresh = estimateNormalsAt(tree_, missing, k_);
+    for (std::size_t i = 0; i < missing.size(); ++i) normals_.col(missing[i]) = fresh.col(static_cast<Eigen::Index>(i));
+  }
+
+  const Cloud& normals() const { return normals_; }
+
+ private:
+  const KdTree& tree_;
+  int k_;
+  Cloud normals_;
+  std::vector<char> known_;
+};
+
 }  // namespace
 
 const char* errorMetricName(ErrorMetric metric) {
@@ -166,9 +196,7 @@ IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial
   if (target.cols() == 0) throw InputError("icp: target cloud is empty");
   IcpResult result;
   KdTree tree(target);
-  const bool need_normals = o.error_metric == ErrorMetric::kPointToPlane;
-  Cloud normals;
-  if (need_normals) normals = estimateNormals(tree, o.normal_neighbors);
+  LazyNormals normals(tree, o.normal_neighbors);
   const Eigen::Vector3d target_centroid = target.rowwise().mean();
   const double target_radius = std::sqrt((target.colwise() - target_centroid).colwise().squaredNorm().mean());
   const double min_scale = initial.scale() * o.min_scale_ratio;
@@ -204,7 +232,8 @@ IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial
         step = Sim3(s, step.rotation(), q.rowwise().mean() - s * (step.rotation() * y.rowwise().mean()));
       }
     } else {
-      step = pointToPlaneStep(moved, target, normals, m, o.estimate_scale, max_log_step);
+      normals.ensure(m);
+      step = pointToPlaneStep(moved, target, normals.normals(), m, o.estimate_scale, max_log_step);
     }
     Sim3 next = step * current;
     if (!next.matrix().allFinite()) {
@@ -246,19 +275,14 @@ IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial
   c.source.resize(3, static_cast<Eigen::Index>(m.size()));
   c.target.resize(3, static_cast<Eigen::Index>(m.size()));
   c.target_normals.resize(3, static_cast<Eigen::Index>(m.size()));
-  if (!need_normals) {
-    // The covariance's observability check needs target normals: estimate them at the matched
-    // target points only, on the full target tree.
-    std::vector<Eigen::Index> matched(m.size());
-    for (std::size_t k = 0; k < m.size(); ++k) matched[k] = m[k].target;
-    c.target_normals = estimateNormalsAt(tree, matched, o.normal_neighbors);
-  }
+  // Point-to-plane uses them; the covariance's observability check needs them for both metrics.
+  normals.ensure(m);
   double sum_d2 = 0.0;
   for (std::size_t k = 0; k < m.size(); ++k) {
     const auto col = static_cast<Eigen::Index>(k);
     c.source.col(col) = source.col(m[k].source);
     c.target.col(col) = target.col(m[k].target);
-    if (need_normals) c.target_normals.col(col) = normals.col(m[k].target);
+    c.target_normals.col(col) = normals.normals().col(m[k].target);
     sum_d2 += m[k].d2;
   }
   result.fitness_rmse = m.empty() ? 0.0 : std::sqrt(sum_d2 / static_cast<double>(m.size()));

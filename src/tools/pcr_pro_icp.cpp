@@ -6,6 +6,7 @@
 #include "pcr_pro/core/cloud_io.h"
 #include "pcr_pro/core/cloud_registration.h"
 #include "pcr_pro/core/config.h"
+#include "pcr_pro/core/merge_pipeline.h"
 #include "tool_common.h"
 
 namespace {
@@ -44,7 +45,8 @@ int run(int argc, char** argv) {
   const std::string source_path = args.required("--source");
   const std::string target_path = args.required("--target");
   RegistrationOptions options;
-  if (const auto config = args.value("--config")) options = loadRegistrationConfig(*config);
+  // The merge configuration schema is accepted too (its front-end blocks are validated, unused).
+  if (const auto config = args.value("--config")) options = loadMergeConfig(*config).registration;
   if (args.flag("--estimate-scale")) options.icp.estimate_scale = true;
   std::optional<Sim3> initial;
   if (const auto init = args.value("--initial")) initial = parseInitial(*init);

@@ -40,14 +40,21 @@ struct RandomSamplingOptions {
   uint32_t seed = 42;       ///< random seed
 };
 
+/// Caps the number of points by uniform random subsampling (scale-free, unlike a voxel grid).
+struct MaxPointsOptions {
+  int max_points = 0;  ///< largest number of points kept; 0 disables the filter
+  uint32_t seed = 42;  ///< random seed
+};
+
 /// One step of a filter chain.
 struct FilterStep {
-  enum class Type { kCrop, kVoxelGrid, kOutlierRemoval, kRandomSampling };
+  enum class Type { kCrop, kVoxelGrid, kOutlierRemoval, kRandomSampling, kMaxPoints };
   Type type = Type::kVoxelGrid;
   CropOptions crop;
   VoxelGridOptions voxel_grid;
   OutlierRemovalOptions outlier_removal;
   RandomSamplingOptions random_sampling;
+  MaxPointsOptions max_points;
 };
 
 /// A filter chain, applied in order. The default chain is empty (no filtering).
@@ -63,12 +70,14 @@ void validate(const CropOptions& o);
 void validate(const VoxelGridOptions& o);
 void validate(const OutlierRemovalOptions& o);
 void validate(const RandomSamplingOptions& o);
+void validate(const MaxPointsOptions& o);
 void validate(const FilterChainOptions& o);
 
 Cloud cropFilter(const Cloud& cloud, const CropOptions& options);
 Cloud voxelGridFilter(const Cloud& cloud, const VoxelGridOptions& options);
 Cloud outlierRemovalFilter(const Cloud& cloud, const OutlierRemovalOptions& options);
 Cloud randomSamplingFilter(const Cloud& cloud, const RandomSamplingOptions& options);
+Cloud maxPointsFilter(const Cloud& cloud, const MaxPointsOptions& options);
 
 /**
  * @brief Applies every step of the chain in order.

@@ -1,0 +1,267 @@
+#include "pcr_pro/core/merge_pipeline.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <sstream>
+#include <vector>
+
+#include "pcr_pro/core/cloud_registration.h"
+#include "pcr_pro/core/filters.h"
+#include "pcr_pro/core/kdtree.h"
+
+namespace pcr_pro {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double msSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+std::string fmt(double v, int precision = 3) {
+  std::ostringstream os;
+  os.precision(precision);
+  os << v;
+  return os.str();
+}
+
+// A keyframe and its SIFT features.
+struct KeyframeEntry {
+  const Keyframe* keyframe = nullptr;
+  KeyframeFeatures features;
+};
+
+// Keyframes of a map to consider: the requested one, or all of them.
+std::vector<KeyframeEntry> selectKeyframes(const AgentMap& map, const std::optional<long>& id, const char* which,
+                                           std::string* error) {
+  std::vector<KeyframeEntry> out;
+  for (const Keyframe& kf : map.keyframes) {
+    if (!id || kf.id == *id) out.push_back(KeyframeEntry{&kf, {}});
+  }
+  if (out.empty()) {
+    *error = id ? std::string(which) + " keyframe " + std::to_string(*id) + " is not in the " + which + " map"
+                : std::string(which) + " map has no keyframes";
+  }
+  return out;
+}
+
+std::string checkMap(const AgentMap& map, const char* which) {
+  if (!map.camera.valid()) return std::string(which) + " map: invalid camera intrinsics or image size";
+  if (map.cloud.cols() == 0) return std::string(which) + " map: empty cloud";
+  for (const Keyframe& kf : map.keyframes) {
+    if (kf.image.empty() || kf.image.type() != CV_8UC1) {
+      return std::string(which) + " keyframe " + std::to_string(kf.id) + ": image missing or not 8-bit grey";
+    }
+    if (kf.image.cols != map.camera.width || kf.image.rows != map.camera.height) {
+      return std::string(which) + " keyframe " + std::to_string(kf.id) + ": image size differs from the camera's";
+    }
+    if (!(kf.pose.scale() > 0.0) || !kf.pose.matrix().allFinite()) {
+      return std::string(which) + " keyframe " + std::to_string(kf.id) + ": invalid pose";
+    }
+  }
+  return "";
+}
+
+// Median distance of target points to their nearest other target point (a sample of them).
+double medianSpacing(const KdTree& tree) {
+  const Cloud& pts = tree.points();
+  const Eigen::Index n = pts.cols();
+  const Eigen::Index step = std::max<Eigen::Index>(1, n / 2000);
+  std::vector<double> d;
+  std::vector<Eigen::Index> idx;
+  std::vector<double> d2;
+  for (Eigen::Index i = 0; i < n; i += step) {
+    tree.knn(pts.col(i), 2, &idx, &d2);
+    if (d2.size() == 2) d.push_back(std::sqrt(d2[1]));
+  }
+  if (d.empty()) return 0.0;
+  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
+  return d[d.size() / 2];
+}
+
+// Fraction of (a sample of) the moved source points within `radius` of a target point.
+double overlapFraction(const Cloud& moved_source, const KdTree& target_tree, double radius) {
+  const Eigen::Index n = moved_source.cols();
+  if (n == 0) return 0.0;
+  const Eigen::Index step = std::max<Eigen::Index>(1, n / 20000);
+  Eigen::Index inside = 0, total = 0;
+  const double r2 = radius * radius;
+  for (Eigen::Index i = 0; i < n; i += step, ++total) {
+    double d2 = 0.0;
+    if (target_tree.nearest(moved_source.col(i), &d2) >= 0 && d2 <= r2) ++inside;
+  }
+  return static_cast<double>(inside) / static_cast<double>(total);
+}
+
+}  // namespace
+
+MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const MergeRequest& request,
+                      const MergeOptions& options) {
+  validate(options);
+  const auto t_total = Clock::now();
+  MergeResult out;
+  RegistrationReport& rep = out.report;
+  MergeDiagnostics& diag = out.diagnostics;
+  auto finish = [&](Status status, const std::string& message) -> MergeResult {
+    rep.status = status;
+    rep.message = message;
+    rep.timings.total = msSince(t_total);
+    return out;
+  };
+
+  for (const auto& [map, which] : {std::pair<const AgentMap*, const char*>{&source, "source"}, {&target, "target"}}) {
+    const std::string problem = checkMap(*map, which);
+    if (!problem.empty()) return finish(Status::kInvalidInput, problem);
+  }
+  std::string error;
+  std::vector<KeyframeEntry> src_kfs = selectKeyframes(source, request.source_keyframe, "source", &error);
+  if (src_kfs.empty()) return finish(Status::kInvalidInput, error);
+  std::vector<KeyframeEntry> tgt_kfs = selectKeyframes(target, request.target_keyframe, "target", &error);
+  if (tgt_kfs.empty()) return finish(Status::kInvalidInput, error);
+
+  // --- features: SIFT once per keyframe, then FLANN matching per candidate pair
+  auto t = Clock::now();
+  std::vector<KeyframeEntry*> all;
+  for (auto& e : src_kfs) all.push_back(&e);
+  for (auto& e : tgt_kfs) all.push_back(&e);
+#pragma omp parallel for schedule(dynamic)
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    all[i]->features = extractFeatures(all[i]->keyframe->image, options.matching);
+  }
+  struct Candidate {
+    const KeyframeEntry* source = nullptr;
+    const KeyframeEntry* target = nullptr;
+    FeatureMatches matches;  // a = target, b = source
+    RelativePoseResult pose;
+  };
+  std::vector<Candidate> candidates;
+  for (const auto& s : src_kfs) {
+    for (const auto& tk : tgt_kfs) {
+      Candidate c;
+      c.source = &s;
+      c.target = &tk;
+      c.matches = matchFeatures(tk.features, s.features, options.matching);
+      candidates.push_back(std::move(c));
+    }
+  }
+  rep.timings.features = msSince(t);
+  diag.candidate_pairs = static_cast<int>(candidates.size());
+
+  // --- relative pose per pair with enough matches; keep the most verified inliers
+  t = Clock::now();
+  const double focal = 0.5 * (source.camera.focal() + target.camera.focal());
+  Candidate* best = nullptr;
+  Candidate* most_matches = nullptr;
+  for (Candidate& c : candidates) {
+    if (!most_matches || c.matches.size() > most_matches->matches.size()) most_matches = &c;
+    if (static_cast<int>(c.matches.size()) < options.matching.min_matches) {
+      c.pose.status = Status::kNotEnoughMatches;
+      c.pose.message = std::to_string(c.matches.size()) + " feature matches < matching.min_matches " +
+                       std::to_string(options.matching.min_matches);
+      continue;
+    }
+    std::vector<Eigen::Vector3d> bt, bs;
+    for (std::size_t k = 0; k < c.matches.size(); ++k) {
+      bt.push_back(target.camera.bearing(c.matches.pixels_a[k].x(), c.matches.pixels_a[k].y()));
+      bs.push_back(source.camera.bearing(c.matches.pixels_b[k].x(), c.matches.pixels_b[k].y()));
+    }
+    c.pose = estimateRelativePose(bt, bs, focal, options.relative_pose);
+    if (c.pose.status == Status::kOk && (!best || c.pose.inlier_count > best->pose.inlier_count)) best = &c;
+  }
+  rep.timings.relative_pose = msSince(t);
+  if (!best) {
+    const Candidate& c = *most_matches;
+    Status status = c.pose.status == Status::kOk ? Status::kRelativePoseFailed : c.pose.status;
+    if (status == Status::kDegenerate) status = Status::kRelativePoseFailed;
+    rep.source_keyframe = c.source->keyframe->id;
+    rep.target_keyframe = c.target->keyframe->id;
+    diag.feature_matches = static_cast<int>(c.matches.size());
+    return finish(status, "no keyframe pair verified (" + std::to_string(candidates.size()) +
+                              " tried); best pair source " + std::to_string(c.source->keyframe->id) + " / target " +
+                              std::to_string(c.target->keyframe->id) + ": " + c.pose.message);
+  }
+  const Keyframe& kf_s = *best->source->keyframe;
+  const Keyframe& kf_t = *best->target->keyframe;
+  rep.source_keyframe = kf_s.id;
+  rep.target_keyframe = kf_t.id;
+  diag.feature_matches = static_cast<int>(best->matches.size());
+  diag.relative_pose_inliers = best->pose.inlier_count;
+
+  // --- keyframe depth and the Kalman-filter scale
+  t = Clock::now();
+  const KeyframeDepth depth_s(kf_s, source.camera, source.cloud, options.keyframe_depth);
+  const KeyframeDepth depth_t(kf_t, target.camera, target.cloud, options.keyframe_depth);
+  std::vector<Eigen::Vector3d> ps, pt;
+  for (int k : best->pose.inliers) {
+    Eigen::Vector3d a, b;
+    const auto ku = static_cast<std::size_t>(k);
+    if (depth_t.pointAt(best->matches.pixels_a[ku].x(), best->matches.pixels_a[ku].y(), &a) &&
+        depth_s.pointAt(best->matches.pixels_b[ku].x(), best->matches.pixels_b[ku].y(), &b)) {
+      pt.push_back(a);
+      ps.push_back(b);
+    }
+  }
+  diag.depth_matches = static_cast<int>(ps.size());
+  const ScaleEstimate scale =
+      estimateScale(ps, pt, best->pose.rotation, best->pose.translation_direction, options.scale_estimation);
+  rep.timings.scale = msSince(t);
+  diag.kalman_scale = scale.scale;
+  diag.kalman_scale_stddev = scale.scale_stddev;
+  diag.kalman_inliers = scale.inliers;
+  if (scale.status != Status::kOk) {
+    return finish(scale.status, "scale from " + std::to_string(ps.size()) + " inlier matches with depth on both sides (" +
+                                    std::to_string(best->pose.inlier_count) + " inliers): " + scale.message);
+  }
+
+  // --- initial map-to-map similarity: target camera -> target map, keyframe similarity,
+  // source map -> source camera. Camera points are in map units (P = pose scale * p_cam).
+  const Sim3 keyframe_sim(scale.scale, best->pose.rotation, scale.lambda * best->pose.translation_direction);
+  const Sim3 cam_t(1.0, kf_t.pose.rotation(), kf_t.pose.translation());
+  const Sim3 cam_s(1.0, kf_s.pose.rotation(), kf_s.pose.translation());
+  diag.initial = cam_t * keyframe_sim * cam_s.inverse();
+
+  // --- scale detection, filters, ICP with scale refinement, covariance
+  RegistrationOptions reg_options = options.registration;
+  reg_options.icp.estimate_scale = options.merge.refine_scale;
+  const StageTimings front = rep.timings;
+  const std::optional<long> sk = rep.source_keyframe, tk = rep.target_keyframe;
+  rep = registerClouds(source.cloud, target.cloud, diag.initial, reg_options);
+  rep.source_keyframe = sk;
+  rep.target_keyframe = tk;
+  rep.timings.features = front.features;
+  rep.timings.relative_pose = front.relative_pose;
+  rep.timings.scale += front.scale;
+  if (!options.merge.refine_scale) rep.scale_stddev = scale.scale_stddev;
+  if (rep.status != Status::kOk && rep.status != Status::kDegenerate) return finish(rep.status, rep.message);
+
+  // --- quality gates against false merges
+  const Sim3& final_sim = *rep.transform;
+  const double correction = rotationDistance(final_sim.rotation(), diag.initial.rotation()) * 180.0 / M_PI;
+  if (correction > options.merge.max_icp_rotation_correction_deg) {
+    return finish(Status::kIcpNotConverged, "refused: ICP rotated the keyframe-based guess by " + fmt(correction) +
+                                                " deg > merge.max_icp_rotation_correction_deg " +
+                                                fmt(options.merge.max_icp_rotation_correction_deg));
+  }
+  const double disagreement = std::abs(final_sim.scale() / scale.scale - 1.0);
+  if (disagreement > options.merge.max_scale_disagreement) {
+    return finish(Status::kScaleFailed, "refused: ICP scale " + fmt(final_sim.scale(), 4) + " disagrees with the Kalman scale " +
+                                            fmt(scale.scale, 4) + " by " + fmt(100 * disagreement) + " %");
+  }
+  const KdTree target_tree(applyFilterChain(target.cloud, options.registration.filters));
+  const double radius = options.merge.overlap_distance_factor * medianSpacing(target_tree);
+  diag.overlap = overlapFraction(final_sim.apply(applyFilterChain(source.cloud, options.registration.filters)),
+                                 target_tree, radius);
+  if (diag.overlap < options.merge.min_overlap) {
+    return finish(Status::kIcpNotConverged, "refused: only " + fmt(100 * diag.overlap) +
+                                                " % of the source map overlaps the target after alignment (< " +
+                                                fmt(100 * options.merge.min_overlap) + " %)");
+  }
+  if (rep.status == Status::kDegenerate) return finish(rep.status, rep.message);
+  return finish(Status::kOk, "merged 2 maps: keyframes source " + std::to_string(kf_s.id) + " / target " +
+                                 std::to_string(kf_t.id) + ", " + std::to_string(best->pose.inlier_count) +
+                                 " inliers, Kalman scale " + fmt(scale.scale, 4) + " +- " +
+                                 fmt(scale.scale_stddev, 2) + ", overlap " + fmt(100 * diag.overlap) + " %");
+}
+
+}  // namespace pcr_pro

@@ -1,0 +1,263 @@
+// Keyframe matching stage: SIFT + FLANN + ratio test + symmetric check, on real images with a
+// known homography, on two real consecutive frames, and on degenerate input.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <set>
+#include <string>
+
+#include "pcr_pro/core/feature_matching.h"
+
+namespace pcr_pro {
+namespace {
+
+const std::string kColorDir = std::string(PCR_PRO_TEST_DATA_DIR) + "/slambook2_ch5_rgbd/color/";
+
+cv::Mat loadGray(const std::string& name) {
+  const cv::Mat img = cv::imread(kColorDir + name, cv::IMREAD_GRAYSCALE);
+  EXPECT_FALSE(img.empty()) << "cannot read " << kColorDir + name;
+  return img;
+}
+
+/// Rotation by angle_deg about the image centre combined with a scale, as a 3x3 homography.
+cv::Mat rotationScaleHomography(const cv::Size& size, double angle_deg, double scale) {
+  const cv::Mat affine = cv::getRotationMatrix2D(cv::Point2f(size.width / 2.0f, size.height / 2.0f), angle_deg, scale);
+  cv::Mat h = cv::Mat::eye(3, 3, CV_64F);
+  affine.copyTo(h.rowRange(0, 2));
+  return h;
+}
+
+Eigen::Vector2d applyHomography(const cv::Mat& h, const Eigen::Vector2d& p) {
+  const double x = h.at<double>(0, 0) * p.x() + h.at<double>(0, 1) * p.y() + h.at<double>(0, 2);
+  const double y = h.at<double>(1, 0) * p.x() + h.at<double>(1, 1) * p.y() + h.at<double>(1, 2);
+  const double w = h.at<double>(2, 0) * p.x() + h.at<double>(2, 1) * p.y() + h.at<double>(2, 2);
+  return Eigen::Vector2d(x / w, y / w);
+}
+
+void expectConsistent(const FeatureMatches& m, const KeyframeFeatures& a, const KeyframeFeatures& b) {
+  ASSERT_EQ(m.pixels_a.size(), m.size());
+  ASSERT_EQ(m.pixels_b.size(), m.size());
+  ASSERT_EQ(m.index_b.size(), m.size());
+  ASSERT_EQ(m.distances.size(), m.size());
+  for (std::size_t i = 0; i < m.size(); ++i) {
+    ASSERT_GE(m.index_a[i], 0);
+    ASSERT_LT(m.index_a[i], static_cast<int>(a.keypoints.size()));
+    ASSERT_GE(m.index_b[i], 0);
+    ASSERT_LT(m.index_b[i], static_cast<int>(b.keypoints.size()));
+    const cv::Point2f& pa = a.keypoints[static_cast<std::size_t>(m.index_a[i])].pt;
+    const cv::Point2f& pb = b.keypoints[static_cast<std::size_t>(m.index_b[i])].pt;
+    EXPECT_FLOAT_EQ(static_cast<float>(m.pixels_a[i].x()), pa.x);
+    EXPECT_FLOAT_EQ(static_cast<float>(m.pixels_a[i].y()), pa.y);
+    EXPECT_FLOAT_EQ(static_cast<float>(m.pixels_b[i].x()), pb.x);
+    EXPECT_FLOAT_EQ(static_cast<float>(m.pixels_b[i].y()), pb.y);
+    if (i > 0) {
+      EXPECT_LE(m.distances[i - 1], m.distances[i]);
+    }
+  }
+}
+
+// Matches 1.png with a copy warped by a known homography (rotation 20 deg about the centre,
+// scale 0.8); the matched pixels must agree with the homography.
+TEST(FeatureMatching, WarpedImageAgreesWithHomography) {
+  const cv::Mat img = loadGray("1.png");
+  ASSERT_FALSE(img.empty());
+  const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
+  cv::Mat warped;
+  cv::warpPerspective(img, warped, h, img.size());
+
+  const FeatureMatchingOptions o;
+  const KeyframeFeatures fa = extractFeatures(img, o);
+  const KeyframeFeatures fb = extractFeatures(warped, o);
+  EXPECT_GT(fa.keypoints.size(), 500u);
+  EXPECT_LE(static_cast<int>(fa.keypoints.size()), o.nfeatures + 50);  // SIFT may keep ties
+  EXPECT_EQ(fa.descriptors.rows, static_cast<int>(fa.keypoints.size()));
+  EXPECT_EQ(fa.descriptors.cols, 128);
+  EXPECT_EQ(fa.descriptors.type(), CV_32F);
+
+  const FeatureMatches m = matchFeatures(fa, fb, o);
+  expectConsistent(m, fa, fb);
+  int good = 0;
+  for (std::size_t i = 0; i < m.size(); ++i) {
+    if ((applyHomography(h, m.pixels_a[i]) - m.pixels_b[i]).norm() < 2.0) ++good;
+  }
+  const double fraction = m.empty() ? 0.0 : static_cast<double>(good) / static_cast<double>(m.size());
+  RecordProperty("matches", static_cast<int>(m.size()));
+  RecordProperty("within_2px_permille", static_cast<int>(1000 * fraction));
+  EXPECT_GE(m.size(), 100u);
+  EXPECT_GT(fraction, 0.9) << good << " of " << m.size() << " matches within 2 px";
+
+  // Symmetric check: every keypoint appears in at most one match on each side.
+  EXPECT_EQ(std::set<int>(m.index_a.begin(), m.index_a.end()).size(), m.size());
+  EXPECT_EQ(std::set<int>(m.index_b.begin(), m.index_b.end()).size(), m.size());
+}
+
+// A stricter ratio test keeps fewer matches, a looser one more; the symmetric check only removes.
+TEST(FeatureMatching, RatioTestAndSymmetricCheckFilter) {
+  const cv::Mat img = loadGray("1.png");
+  ASSERT_FALSE(img.empty());
+  const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
+  cv::Mat warped;
+  cv::warpPerspective(img, warped, h, img.size());
+  FeatureMatchingOptions o;
+  const KeyframeFeatures fa = extractFeatures(img, o);
+  const KeyframeFeatures fb = extractFeatures(warped, o);
+
+  o.ratio_test = 0.6;
+  const std::size_t strict = matchFeatures(fa, fb, o).size();
+  o.ratio_test = 0.8;
+  const std::size_t normal = matchFeatures(fa, fb, o).size();
+  o.symmetric = false;
+  const std::size_t one_way = matchFeatures(fa, fb, o).size();
+  o.ratio_test = 1.0;
+  const std::size_t loose = matchFeatures(fa, fb, o).size();
+  EXPECT_LT(strict, normal);
+  EXPECT_LE(normal, one_way);
+  EXPECT_LT(one_way, loose);
+  EXPECT_GT(strict, 0u);
+}
+
+// Two real consecutive frames of the RGB-D sequence.
+TEST(FeatureMatching, RealFramesTwoAndThree) {
+  const cv::Mat a = loadGray("2.png");
+  const cv::Mat b = loadGray("3.png");
+  ASSERT_FALSE(a.empty());
+  ASSERT_FALSE(b.empty());
+  const FeatureMatchingOptions o;
+  const KeyframeFeatures fa = extractFeatures(a, o);
+  const KeyframeFeatures fb = extractFeatures(b, o);
+  const FeatureMatches m = matchFeatures(fa, fb, o);
+  expectConsistent(m, fa, fb);
+  RecordProperty("matches", static_cast<int>(m.size()));
+  EXPECT_GE(static_cast<int>(m.size()), o.min_matches);
+}
+
+TEST(FeatureMatching, BlackAndEmptyImagesGiveNoMatches) {
+  const FeatureMatchingOptions o;
+  const cv::Mat black = cv::Mat::zeros(480, 640, CV_8UC1);
+  const KeyframeFeatures fblack = extractFeatures(black, o);
+  EXPECT_TRUE(fblack.keypoints.empty());
+  EXPECT_TRUE(fblack.descriptors.empty());
+
+  const KeyframeFeatures fempty = extractFeatures(cv::Mat(), o);
+  EXPECT_TRUE(fempty.keypoints.empty());
+
+  const KeyframeFeatures ftiny = extractFeatures(cv::Mat(1, 1, CV_8UC1, cv::Scalar(7)), o);
+  EXPECT_TRUE(ftiny.keypoints.empty());
+
+  const cv::Mat img = loadGray("1.png");
+  ASSERT_FALSE(img.empty());
+  const KeyframeFeatures freal = extractFeatures(img, o);
+  ASSERT_GT(freal.keypoints.size(), 2u);
+
+  EXPECT_TRUE(matchFeatures(fblack, freal, o).empty());
+  EXPECT_TRUE(matchFeatures(freal, fblack, o).empty());
+  EXPECT_TRUE(matchFeatures(fblack, fblack, o).empty());
+  EXPECT_TRUE(matchFeatures(fempty, freal, o).empty());
+
+  // A single keypoint on one side: no second neighbour for the ratio test.
+  KeyframeFeatures one;
+  one.keypoints.push_back(freal.keypoints[0]);
+  one.descriptors = freal.descriptors.row(0).clone();
+  EXPECT_TRUE(matchFeatures(one, freal, o).empty());
+  EXPECT_TRUE(matchFeatures(freal, one, o).empty());
+
+  // Keypoints without descriptors.
+  KeyframeFeatures no_desc;
+  no_desc.keypoints = freal.keypoints;
+  EXPECT_TRUE(matchFeatures(no_desc, freal, o).empty());
+}
+
+TEST(FeatureMatching, BadInputThrows) {
+  const FeatureMatchingOptions o;
+  EXPECT_THROW(extractFeatures(cv::Mat::zeros(10, 10, CV_8UC3), o), InputError);
+  EXPECT_THROW(extractFeatures(cv::Mat::zeros(10, 10, CV_16UC1), o), InputError);
+  EXPECT_THROW(extractFeatures(cv::Mat::zeros(10, 10, CV_32FC1), o), InputError);
+
+  const cv::Mat img = loadGray("1.png");
+  ASSERT_FALSE(img.empty());
+  const KeyframeFeatures f = extractFeatures(img, o);
+  KeyframeFeatures bad = f;
+  bad.keypoints.pop_back();
+  EXPECT_THROW(matchFeatures(bad, f, o), InputError);
+  KeyframeFeatures short_desc = f;
+  short_desc.descriptors = f.descriptors.colRange(0, 64).clone();
+  EXPECT_THROW(matchFeatures(short_desc, f, o), InputError);
+}
+
+// Descriptors of another type (here 8-bit) are converted and still match themselves.
+TEST(FeatureMatching, NonFloatDescriptorsAreConverted) {
+  const cv::Mat img = loadGray("1.png");
+  ASSERT_FALSE(img.empty());
+  const FeatureMatchingOptions o;
+  KeyframeFeatures f = extractFeatures(img, o);
+  f.descriptors.convertTo(f.descriptors, CV_8U);
+  const FeatureMatches m = matchFeatures(f, f, o);
+  EXPECT_GT(m.size(), 100u);
+  int same = 0;
+  for (std::size_t i = 0; i < m.size(); ++i) same += (m.pixels_a[i] - m.pixels_b[i]).norm() < 1e-6 ? 1 : 0;
+  EXPECT_GT(same, static_cast<int>(0.9 * static_cast<double>(m.size())));
+}
+
+TEST(FeatureMatching, DefaultsAndValidation) {
+  const FeatureMatchingOptions d;
+  EXPECT_EQ(d.nfeatures, 2000);
+  EXPECT_EQ(d.n_octave_layers, 3);
+  EXPECT_DOUBLE_EQ(d.contrast_threshold, 0.04);
+  EXPECT_DOUBLE_EQ(d.edge_threshold, 10.0);
+  EXPECT_DOUBLE_EQ(d.sigma, 1.6);
+  EXPECT_EQ(d.flann_trees, 4);
+  EXPECT_EQ(d.flann_checks, 64);
+  EXPECT_DOUBLE_EQ(d.ratio_test, 0.8);
+  EXPECT_TRUE(d.symmetric);
+  EXPECT_EQ(d.min_matches, 15);
+  EXPECT_NO_THROW(validate(d));
+
+  auto expectKey = [](const FeatureMatchingOptions& o, const std::string& key) {
+    try {
+      validate(o);
+      ADD_FAILURE() << "no error for " << key;
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
+    }
+    // The stage functions validate too.
+    EXPECT_THROW(extractFeatures(cv::Mat::zeros(8, 8, CV_8UC1), o), InputError);
+    EXPECT_THROW(matchFeatures(KeyframeFeatures(), KeyframeFeatures(), o), InputError);
+  };
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  FeatureMatchingOptions o;
+  o.nfeatures = -1;
+  expectKey(o, "matching.nfeatures");
+  o = d;
+  o.n_octave_layers = 0;
+  expectKey(o, "matching.n_octave_layers");
+  o = d;
+  o.contrast_threshold = 0.0;
+  expectKey(o, "matching.contrast_threshold");
+  o = d;
+  o.edge_threshold = nan;
+  expectKey(o, "matching.edge_threshold");
+  o = d;
+  o.sigma = -1.0;
+  expectKey(o, "matching.sigma");
+  o = d;
+  o.flann_trees = 0;
+  expectKey(o, "matching.flann_trees");
+  o = d;
+  o.flann_checks = 0;
+  expectKey(o, "matching.flann_checks");
+  o = d;
+  o.ratio_test = 0.0;
+  expectKey(o, "matching.ratio_test must be in (0, 1]");
+  o = d;
+  o.ratio_test = 1.01;
+  expectKey(o, "matching.ratio_test");
+  o = d;
+  o.min_matches = -1;
+  expectKey(o, "matching.min_matches");
+}
+
+}  // namespace
+}  // namespace pcr_pro

@@ -1,0 +1,191 @@
+// End-to-end merges of the shipped real two-agent bundles (made from real Kinect frames, see
+// test/data/bundles/README.md), at scale ratios from 0.1 to 10, and refusal of a non-overlapping pair.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "pcr_pro/core/bundle.h"
+#include "pcr_pro/core/merge_pipeline.h"
+#include "test_helpers.h"
+
+namespace pcr_pro {
+namespace {
+
+// Tolerances the approximate poses of the data allow (slambook2 poses are good to about 1 deg /
+// a few cm; the two agents' maps inherit that disagreement): rotation, relative scale, and
+// translation in target units (the target agent is in metres).
+constexpr double kRotationTolDeg = 1.0;
+constexpr double kScaleTol = 0.015;
+constexpr double kTranslationTol = 0.12;
+
+// Expresses an agent's map in units `factor` times larger: S' = diag(factor) ∘ S.
+AgentMap rescaled(const AgentMap& map, double factor) {
+  AgentMap out = map;
+  out.cloud *= factor;
+  for (Keyframe& kf : out.keyframes) {
+    kf.pose = Sim3(factor, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero()) * kf.pose;
+  }
+  return out;
+}
+
+struct Errors {
+  double rotation_deg, scale_rel, translation;
+};
+
+Errors errors(const Sim3& est, const Sim3& truth) {
+  return {test::deg(rotationDistance(est.rotation(), truth.rotation())), std::abs(est.scale() / truth.scale() - 1.0),
+          (est.translation() - truth.translation()).norm()};
+}
+
+class MergeScaleRatios : public ::testing::TestWithParam<std::tuple<std::string, double>> {};
+
+TEST_P(MergeScaleRatios, RecoversTheKnownSimilarity) {
+  const std::string variant = std::get<0>(GetParam());
+  const double ratio = std::get<1>(GetParam());  // wanted scale of S_target_source
+  const std::string dir = test::dataPath("bundles/" + variant);
+  const BundleTruth truth = loadBundleTruth(dir + "/truth.yaml");
+  const AgentMap target = loadBundle(dir + "/agent_a");
+  // Rescale the source map so that S_target_source has the wanted scale.
+  const double factor = truth.target_source.scale() / ratio;
+  const AgentMap source = rescaled(loadBundle(dir + "/agent_b"), factor);
+  const Sim3 expected = truth.target_source * Sim3(1.0 / factor, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero());
+  ASSERT_NEAR(expected.scale(), ratio, 1e-12);
+
+  const MergeResult r = mergeMaps(source, target, MergeRequest(), MergeOptions());
+  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
+  ASSERT_TRUE(r.report.transform && r.report.covariance && r.report.information);
+  const Errors e = errors(*r.report.transform, expected);
+  EXPECT_LT(e.rotation_deg, kRotationTolDeg);
+  EXPECT_LT(e.scale_rel, kScaleTol);
+  EXPECT_LT(e.translation, kTranslationTol);
+  // The Kalman scale alone is already close; ICP refines it.
+  EXPECT_LT(std::abs(r.diagnostics.kalman_scale / ratio - 1.0), 0.05);
+  EXPECT_TRUE(r.report.scale_difference_detected.value_or(false) || std::abs(std::log(ratio)) < std::log(1.2));
+  EXPECT_TRUE(r.report.covariance->allFinite());
+  EXPECT_GT(r.report.covariance->diagonal().minCoeff(), 0.0);
+}
+
+INSTANTIATE_TEST_SUITE_P(Bundles, MergeScaleRatios,
+                         ::testing::Combine(::testing::Values("depth", "nodepth"),
+                                            ::testing::Values(0.1, 0.4, 1.0, 2.5, 10.0)),
+                         [](const auto& info) {
+                           return std::get<0>(info.param) + "_ratio_" +
+                                  std::to_string(static_cast<int>(std::get<1>(info.param) * 10)) + "_tenths";
+                         });
+
+TEST(Merge, GivenKeyframesAreUsed) {
+  const std::string dir = test::dataPath("bundles/depth");
+  MergeRequest req;
+  req.source_keyframe = 3;
+  req.target_keyframe = 2;
+  const MergeResult r = mergeMaps(loadBundle(dir + "/agent_b"), loadBundle(dir + "/agent_a"), req, MergeOptions());
+  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
+  EXPECT_EQ(r.report.source_keyframe.value_or(-1), 3);
+  EXPECT_EQ(r.report.target_keyframe.value_or(-1), 2);
+  EXPECT_EQ(r.diagnostics.candidate_pairs, 1);
+  const Errors e = errors(*r.report.transform, loadBundleTruth(dir + "/truth.yaml").target_source);
+  EXPECT_LT(e.rotation_deg, kRotationTolDeg);
+  EXPECT_LT(e.scale_rel, kScaleTol);
+}
+
+TEST(Merge, NonOverlappingMapsAreRefused) {
+  const std::string dir = test::dataPath("bundles/nooverlap");
+  ASSERT_FALSE(loadBundleTruth(dir + "/truth.yaml").overlap);
+  const MergeResult r = mergeMaps(loadBundle(dir + "/agent_b"), loadBundle(dir + "/agent_a"), MergeRequest(), MergeOptions());
+  EXPECT_NE(r.report.status, Status::kOk);
+  EXPECT_FALSE(r.report.message.empty());
+}
+
+TEST(Merge, UnknownKeyframeAndBadMapsGiveInvalidInput) {
+  const std::string dir = test::dataPath("bundles/depth");
+  const AgentMap a = loadBundle(dir + "/agent_a"), b = loadBundle(dir + "/agent_b");
+  MergeRequest req;
+  req.source_keyframe = 99;
+  EXPECT_EQ(mergeMaps(b, a, req, MergeOptions()).report.status, Status::kInvalidInput);
+  AgentMap empty = b;
+  empty.cloud.resize(3, 0);
+  EXPECT_EQ(mergeMaps(empty, a, MergeRequest(), MergeOptions()).report.status, Status::kInvalidInput);
+  AgentMap no_kf = b;
+  no_kf.keyframes.clear();
+  EXPECT_EQ(mergeMaps(no_kf, a, MergeRequest(), MergeOptions()).report.status, Status::kInvalidInput);
+}
+
+TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
+  const MergeOptions shipped = loadMergeConfig(std::string(PCR_PRO_CONFIG_DIR) + "/merge.yaml");
+  const MergeOptions d;
+  EXPECT_EQ(shipped.matching.nfeatures, d.matching.nfeatures);
+  EXPECT_EQ(shipped.matching.ratio_test, d.matching.ratio_test);
+  EXPECT_EQ(shipped.matching.min_matches, d.matching.min_matches);
+  EXPECT_EQ(shipped.relative_pose.algorithm, d.relative_pose.algorithm);
+  EXPECT_EQ(shipped.relative_pose.pixel_error, d.relative_pose.pixel_error);
+  EXPECT_EQ(shipped.relative_pose.min_inliers, d.relative_pose.min_inliers);
+  EXPECT_EQ(shipped.keyframe_depth.neighborhood_radius_px, d.keyframe_depth.neighborhood_radius_px);
+  EXPECT_EQ(shipped.scale_estimation.gating_chi2, d.scale_estimation.gating_chi2);
+  EXPECT_EQ(shipped.merge.min_overlap, d.merge.min_overlap);
+  EXPECT_EQ(shipped.merge.refine_scale, d.merge.refine_scale);
+  EXPECT_EQ(shipped.registration.icp.trim_ratio, d.registration.icp.trim_ratio);
+  EXPECT_THROW(parseMergeConfig("relative_pose: {algorithm: FOO}\n", "x.yaml"), InputError);
+  EXPECT_THROW(parseMergeConfig("matching: {ratio_test: 2}\n", "x.yaml"), InputError);
+  EXPECT_THROW(parseMergeConfig("merge: {min_overlap: -1}\n", "x.yaml"), InputError);
+}
+
+// --- the pcr_pro_merge command line
+
+struct CliRun {
+  int status = -1;
+  std::string out, err;
+};
+
+CliRun runMerge(const std::string& args) {
+  namespace fs = std::filesystem;
+  const fs::path tmp = fs::temp_directory_path() / ("pcr_pro_merge_cli_" + std::to_string(::getpid()));
+  fs::create_directories(tmp);
+  const std::string out = (tmp / "out.txt").string(), err = (tmp / "err.txt").string();
+  const int raw = std::system((std::string(PCR_PRO_MERGE_BIN) + " " + args + " >" + out + " 2>" + err).c_str());
+  CliRun r;
+  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
+  std::ifstream o(out), e(err);
+  r.out.assign(std::istreambuf_iterator<char>(o), {});
+  r.err.assign(std::istreambuf_iterator<char>(e), {});
+  return r;
+}
+
+TEST(MergeCli, MergesWritesOutputsAndRefuses) {
+  namespace fs = std::filesystem;
+  const std::string dir = test::dataPath("bundles/depth");
+  const fs::path out = fs::temp_directory_path() / ("pcr_pro_merge_out_" + std::to_string(::getpid()));
+  fs::remove_all(out);
+  const CliRun ok = runMerge("--source " + dir + "/agent_b --target " + dir + "/agent_a --output " + out.string());
+  ASSERT_EQ(ok.status, 0) << ok.err << ok.out;
+  for (const char* key : {"status: OK", "source_keyframe:", "target_keyframe:", "scale:", "rotation:", "translation:",
+                          "covariance:", "information:", "scale_stddev:", "fitness_rmse:", "correspondences:",
+                          "scale_difference_detected:", "timings_ms: {features:"}) {
+    EXPECT_NE(ok.out.find(key), std::string::npos) << key;
+  }
+  EXPECT_TRUE(fs::exists(out / "result.yaml"));
+  EXPECT_TRUE(fs::exists(out / "fused.pcd"));
+  const std::string no = test::dataPath("bundles/nooverlap");
+  const CliRun refused = runMerge("--source " + no + "/agent_b --target " + no + "/agent_a");
+  EXPECT_EQ(refused.status, 1);
+  EXPECT_NE(refused.out.find("message:"), std::string::npos);
+  EXPECT_EQ(refused.out.find("status: OK"), std::string::npos);
+}
+
+TEST(MergeCli, BadInputExitsTwoNamingTheFile) {
+  const std::string dir = test::dataPath("bundles/depth");
+  const CliRun missing = runMerge("--source /nonexistent/bundle --target " + dir + "/agent_a");
+  EXPECT_EQ(missing.status, 2);
+  EXPECT_NE(missing.err.find("/nonexistent/bundle"), std::string::npos) << missing.err;
+  EXPECT_EQ(std::count(missing.err.begin(), missing.err.end(), '\n'), 1);
+  const CliRun bad_id = runMerge("--source " + dir + "/agent_b --target " + dir + "/agent_a --source-keyframe 42");
+  EXPECT_EQ(bad_id.status, 2);
+  EXPECT_NE(bad_id.err.find("42"), std::string::npos);
+  EXPECT_EQ(runMerge("--source " + dir + "/agent_b").status, 2);
+  EXPECT_EQ(runMerge("--source " + dir + "/agent_b --target " + dir + "/agent_a --source-keyframe x").status, 2);
+}
+
+}  // namespace
+}  // namespace pcr_pro

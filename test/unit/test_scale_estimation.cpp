@@ -1,0 +1,331 @@
+// Scale by Kalman filter: synthetic matches with a known scale, baseline, noise and outliers.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "pcr_pro/core/scale_estimation.h"
+#include "pcr_pro/core/sim3.h"
+
+namespace pcr_pro {
+namespace {
+
+constexpr double kFocal = 500.0;
+constexpr int kWidth = 640, kHeight = 480;
+
+// A synthetic set of matches between two keyframe cameras.
+struct Scenario {
+  Eigen::Matrix3d R;
+  Eigen::Vector3d t_hat;
+  double scale = 1.0;
+  double lambda = 1.0;
+  std::vector<Eigen::Vector3d> source;
+  std::vector<Eigen::Vector3d> target;
+  std::vector<bool> is_outlier;
+};
+
+// Camera-frame point seen at a random pixel at a random depth in [z_min, z_max].
+Eigen::Vector3d randomCameraPoint(std::mt19937* rng, double z_min, double z_max) {
+  std::uniform_real_distribution<double> pu(0.0, kWidth), pv(0.0, kHeight), pz(z_min, z_max);
+  const double z = pz(*rng);
+  return z * Eigen::Vector3d((pu(*rng) - 0.5 * kWidth) / kFocal, (pv(*rng) - 0.5 * kHeight) / kFocal, 1.0);
+}
+
+// Adds the noise of the estimator's model: relative sigma_d along the ray, sigma_l across.
+Eigen::Vector3d addNoise(const Eigen::Vector3d& p, double sigma_d, double sigma_l, std::mt19937* rng) {
+  std::normal_distribution<double> g(0.0, 1.0);
+  const double d = p.norm();
+  const Eigen::Vector3d b = p / d;
+  const Eigen::Vector3d e1 = b.unitOrthogonal();
+  const Eigen::Vector3d e2 = b.cross(e1);
+  return p + d * (sigma_d * g(*rng) * b + sigma_l * (g(*rng) * e1 + g(*rng) * e2));
+}
+
+Scenario makeScenario(double scale, int n, double outlier_fraction, double sigma_d, double sigma_l, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  Scenario s;
+  s.scale = scale;
+  s.R = expSO3(Eigen::Vector3d(0.15 * unit(rng), 0.3 * unit(rng), 0.1 * unit(rng)));
+  s.t_hat = Eigen::Vector3d(1.0, 0.2 * unit(rng), 0.3 * unit(rng)).normalized();
+  s.lambda = scale * (0.8 + 0.4 * (unit(rng) + 1.0) / 2.0);  // baseline of ~1 source unit
+  const int n_outliers = static_cast<int>(std::round(outlier_fraction * n));
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3d ps = randomCameraPoint(&rng, 2.0, 8.0);
+    const Eigen::Vector3d pt = scale * (s.R * ps) + s.lambda * s.t_hat;
+    s.source.push_back(addNoise(ps, sigma_d, sigma_l, &rng));
+    const bool outlier = i < n_outliers;
+    s.is_outlier.push_back(outlier);
+    // An outlier: a random wrong 3D point in front of the target camera.
+    s.target.push_back(outlier ? randomCameraPoint(&rng, 2.0 * scale, 8.0 * scale)
+                               : addNoise(pt, sigma_d, sigma_l, &rng));
+  }
+  // Shuffle so that the outliers are not all first.
+  std::vector<size_t> perm(static_cast<size_t>(n));
+  for (size_t i = 0; i < perm.size(); ++i) perm[i] = i;
+  std::shuffle(perm.begin(), perm.end(), rng);
+  Scenario shuffled = s;
+  for (size_t i = 0; i < perm.size(); ++i) {
+    shuffled.source[i] = s.source[perm[i]];
+    shuffled.target[i] = s.target[perm[i]];
+    shuffled.is_outlier[i] = s.is_outlier[perm[i]];
+  }
+  return shuffled;
+}
+
+ScaleEstimate run(const Scenario& s, const ScaleEstimationOptions& options = ScaleEstimationOptions()) {
+  return estimateScale(s.source, s.target, s.R, s.t_hat, options);
+}
+
+class ScaleWithOutliersTest : public ::testing::TestWithParam<double> {};
+
+TEST_P(ScaleWithOutliersTest, RecoversScaleWithThirtyPercentOutliersAndDepthNoise) {
+  const double true_scale = GetParam();
+  for (unsigned seed = 1; seed <= 5; ++seed) {
+    // The estimator is scale-equivariant: different data per scale, not the same data rescaled.
+    const Scenario s =
+        makeScenario(true_scale, 100, 0.3, 0.02, 0.002, seed + static_cast<unsigned>(std::lround(100.0 * true_scale)));
+    const ScaleEstimate e = run(s);
+    ASSERT_EQ(e.status, Status::kOk) << e.message;
+    EXPECT_NEAR(e.scale, true_scale, 0.02 * true_scale) << "seed " << seed << ": " << e.message;
+    EXPECT_GT(e.scale_stddev, 0.0);
+    EXPECT_LE(std::abs(e.scale - true_scale), 3.0 * e.scale_stddev)
+        << "seed " << seed << ": scale " << e.scale << " +- " << e.scale_stddev;
+    EXPECT_NEAR(e.lambda, s.lambda, 3.0 * e.lambda_stddev + 1e-12) << "seed " << seed;
+    EXPECT_NEAR(e.covariance(0, 0), e.scale_stddev * e.scale_stddev, 1e-15 + 1e-9 * e.covariance(0, 0));
+    EXPECT_EQ(e.used, 100);
+
+    ASSERT_EQ(e.inlier_mask.size(), s.source.size());
+    int outliers = 0, outliers_flagged = 0, inliers = 0, inliers_kept = 0, mask_count = 0;
+    for (size_t i = 0; i < s.source.size(); ++i) {
+      mask_count += e.inlier_mask[i] ? 1 : 0;
+      if (s.is_outlier[i]) {
+        ++outliers;
+        outliers_flagged += e.inlier_mask[i] ? 0 : 1;
+      } else {
+        ++inliers;
+        inliers_kept += e.inlier_mask[i] ? 1 : 0;
+      }
+    }
+    EXPECT_EQ(mask_count, e.inliers);
+    EXPECT_GE(outliers_flagged, 0.9 * outliers) << "seed " << seed;
+    EXPECT_GE(inliers_kept, 0.9 * inliers) << "seed " << seed;
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(TrueScales, ScaleWithOutliersTest, ::testing::Values(0.1, 1.0, 10.0));
+
+TEST(ScaleEstimationTest, ExactDataGivesExactScale) {
+  const Scenario s = makeScenario(3.7, 20, 0.0, 0.0, 0.0, 11);
+  const ScaleEstimate e = run(s);
+  ASSERT_EQ(e.status, Status::kOk) << e.message;
+  EXPECT_NEAR(e.scale, 3.7, 1e-6 * 3.7);
+  EXPECT_NEAR(e.lambda, s.lambda, 1e-6 * s.lambda);
+  EXPECT_EQ(e.inliers, 20);
+}
+
+// Normalised errors (s - s_true) / scale_stddev over random outlier-free trials with n matches.
+std::vector<double> normalisedErrors(int trials, int n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> log_scale(std::log(0.1), std::log(10.0));
+  std::vector<double> normalised;
+  for (int trial = 0; trial < trials; ++trial) {
+    const double true_scale = std::exp(log_scale(rng));
+    const Scenario s = makeScenario(true_scale, n, 0.0, 0.02, 0.002, seed + 1u + static_cast<unsigned>(trial));
+    const ScaleEstimate e = run(s);
+    EXPECT_EQ(e.status, Status::kOk) << "trial " << trial << ": " << e.message;
+    if (e.status == Status::kOk) normalised.push_back((e.scale - true_scale) / e.scale_stddev);
+  }
+  return normalised;
+}
+
+void meanAndVariance(const std::vector<double>& values, double* mean, double* var) {
+  *mean = 0.0;
+  for (double v : values) *mean += v;
+  *mean /= static_cast<double>(values.size());
+  *var = 0.0;
+  for (double v : values) *var += (v - *mean) * (v - *mean);
+  *var /= static_cast<double>(values.size() - 1);
+}
+
+TEST(ScaleEstimationTest, NormalisedErrorIsConsistent) {
+  // Without outliers the reported standard deviation must match the actual error spread.
+  const std::vector<double> normalised = normalisedErrors(200, 40, 1000);
+  ASSERT_EQ(normalised.size(), 200u);
+  double mean = 0.0;
+  double var = 0.0;
+  meanAndVariance(normalised, &mean, &var);
+  RecordProperty("normalised_error_mean", std::to_string(mean));
+  RecordProperty("normalised_error_variance", std::to_string(var));
+  EXPECT_GE(var, 0.5);
+  EXPECT_LE(var, 2.0);
+  // The mean of 200 unit-variance errors is within +-0.3 (about 4 of its standard deviations).
+  EXPECT_LT(std::abs(mean), 0.3);
+}
+
+TEST(ScaleEstimationTest, NoErrorsInVariablesBiasWithManyMatches) {
+  // The noise of the source points biases a plain filter towards a smaller scale by ~0.1 %;
+  // with 300 matches that is ~0.7 standard deviations, so an uncorrected filter fails here.
+  const std::vector<double> normalised = normalisedErrors(200, 300, 7000);
+  ASSERT_EQ(normalised.size(), 200u);
+  double mean = 0.0;
+  double var = 0.0;
+  meanAndVariance(normalised, &mean, &var);
+  RecordProperty("normalised_error_mean", std::to_string(mean));
+  RecordProperty("normalised_error_variance", std::to_string(var));
+  EXPECT_LT(std::abs(mean), 0.3);
+  EXPECT_GE(var, 0.5);
+  EXPECT_LE(var, 2.0);
+}
+
+TEST(ScaleEstimationTest, TooFewPointsIsNotEnoughMatches) {
+  const Scenario s = makeScenario(2.0, 5, 0.0, 0.02, 0.002, 3);
+  const ScaleEstimate e = run(s);
+  EXPECT_EQ(e.status, Status::kNotEnoughMatches);
+  EXPECT_FALSE(e.message.empty());
+  EXPECT_EQ(e.inlier_mask.size(), 5u);
+
+  const std::vector<Eigen::Vector3d> none;
+  EXPECT_EQ(estimateScale(none, none, s.R, s.t_hat, ScaleEstimationOptions()).status, Status::kNotEnoughMatches);
+}
+
+TEST(ScaleEstimationTest, AllOutliersFail) {
+  for (unsigned seed = 1; seed <= 20; ++seed) {
+    const Scenario s = makeScenario(1.5, 60, 1.0, 0.02, 0.002, 100 + seed);
+    const ScaleEstimate e = run(s);
+    EXPECT_NE(e.status, Status::kOk) << "seed " << seed << ": " << e.message;
+    EXPECT_FALSE(e.message.empty());
+  }
+}
+
+TEST(ScaleEstimationTest, NonFinitePointsAreSkipped) {
+  Scenario s = makeScenario(0.5, 40, 0.0, 0.02, 0.002, 5);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double inf = std::numeric_limits<double>::infinity();
+  s.source[0] = Eigen::Vector3d(nan, 1.0, 1.0);
+  s.target[1] = Eigen::Vector3d(1.0, inf, 1.0);
+  s.source[2] = Eigen::Vector3d::Zero();
+  s.target[3] = Eigen::Vector3d(1e300, 1e300, 1e300);  // squared norm overflows
+  const ScaleEstimate e = run(s);
+  ASSERT_EQ(e.status, Status::kOk) << e.message;
+  EXPECT_EQ(e.used, 36);
+  for (size_t i = 0; i < 4; ++i) EXPECT_FALSE(e.inlier_mask[i]);
+  EXPECT_NEAR(e.scale, 0.5, 0.02 * 0.5);
+
+  // Only non-finite points: not enough usable matches.
+  std::vector<Eigen::Vector3d> bad(s.target.size(), Eigen::Vector3d(nan, nan, nan));
+  const ScaleEstimate e_bad = estimateScale(bad, s.target, s.R, s.t_hat, ScaleEstimationOptions());
+  EXPECT_EQ(e_bad.status, Status::kNotEnoughMatches);
+  EXPECT_EQ(e_bad.used, 0);
+}
+
+TEST(ScaleEstimationTest, DegenerateAndExtremeInputsDoNotCrash) {
+  const Scenario s = makeScenario(1.0, 30, 0.0, 0.02, 0.002, 9);
+  // Every point identical: one constraint repeated; either a failure or a finite estimate.
+  std::vector<Eigen::Vector3d> same_s(30, s.source[0]);
+  std::vector<Eigen::Vector3d> same_t(30, s.target[0]);
+  const ScaleEstimate e1 = estimateScale(same_s, same_t, s.R, s.t_hat, ScaleEstimationOptions());
+  if (e1.status == Status::kOk) {
+    EXPECT_TRUE(std::isfinite(e1.scale) && e1.scale > 0.0);
+  }
+
+  // Points all on the baseline: the scale is not observable.
+  std::vector<Eigen::Vector3d> src, tgt;
+  for (int i = 1; i <= 30; ++i) {
+    const Eigen::Vector3d ps = s.R.transpose() * s.t_hat * (0.5 * i);
+    src.push_back(ps);
+    tgt.push_back(2.0 * (s.R * ps) + 1.0 * s.t_hat);
+  }
+  const ScaleEstimate e2 = estimateScale(src, tgt, s.R, s.t_hat, ScaleEstimationOptions());
+  EXPECT_NE(e2.status, Status::kOk) << e2.message;
+
+  // Tiny and huge magnitudes.
+  std::vector<Eigen::Vector3d> tiny_s, huge_t;
+  for (size_t i = 0; i < s.source.size(); ++i) {
+    tiny_s.push_back(1e-200 * s.source[i]);
+    huge_t.push_back(1e200 * s.target[i]);
+  }
+  const ScaleEstimate e3 = estimateScale(tiny_s, huge_t, s.R, s.t_hat, ScaleEstimationOptions());
+  EXPECT_FALSE(e3.message.empty());
+  // Target points all at the origin are unusable.
+  std::vector<Eigen::Vector3d> zeros(30, Eigen::Vector3d::Zero());
+  EXPECT_EQ(estimateScale(s.source, zeros, s.R, s.t_hat, ScaleEstimationOptions()).status, Status::kNotEnoughMatches);
+}
+
+TEST(ScaleEstimationTest, InvalidInputThrows) {
+  const Scenario s = makeScenario(1.0, 20, 0.0, 0.02, 0.002, 4);
+  std::vector<Eigen::Vector3d> shorter(s.target.begin(), s.target.end() - 1);
+  EXPECT_THROW(estimateScale(s.source, shorter, s.R, s.t_hat, ScaleEstimationOptions()), InputError);
+  EXPECT_THROW(estimateScale(s.source, s.target, s.R, 2.0 * s.t_hat, ScaleEstimationOptions()), InputError);
+  EXPECT_THROW(estimateScale(s.source, s.target, s.R, Eigen::Vector3d::Zero(), ScaleEstimationOptions()), InputError);
+  EXPECT_THROW(
+      estimateScale(s.source, s.target, s.R, Eigen::Vector3d::Constant(std::nan("")), ScaleEstimationOptions()),
+      InputError);
+  EXPECT_THROW(estimateScale(s.source, s.target, 2.0 * s.R, s.t_hat, ScaleEstimationOptions()), InputError);
+  EXPECT_THROW(estimateScale(s.source, s.target, -s.R, s.t_hat, ScaleEstimationOptions()), InputError);
+  // Sizes are checked before anything else, even for too few points.
+  std::vector<Eigen::Vector3d> one(1, Eigen::Vector3d::UnitZ());
+  EXPECT_THROW(estimateScale(one, {}, s.R, s.t_hat, ScaleEstimationOptions()), InputError);
+}
+
+TEST(ScaleEstimationTest, OptionValidationNamesTheKey) {
+  auto messageOf = [](const ScaleEstimationOptions& o) -> std::string {
+    try {
+      validate(o);
+    } catch (const InputError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  EXPECT_EQ(messageOf(ScaleEstimationOptions()), "");
+  ScaleEstimationOptions o;
+  o.relative_depth_noise = 0.0;
+  EXPECT_NE(messageOf(o).find("scale_estimation.relative_depth_noise"), std::string::npos);
+  o = ScaleEstimationOptions();
+  o.relative_lateral_noise = -1.0;
+  EXPECT_NE(messageOf(o).find("scale_estimation.relative_lateral_noise"), std::string::npos);
+  o = ScaleEstimationOptions();
+  o.gating_chi2 = std::nan("");
+  EXPECT_NE(messageOf(o).find("scale_estimation.gating_chi2"), std::string::npos);
+  o = ScaleEstimationOptions();
+  o.min_inliers = 1;
+  EXPECT_NE(messageOf(o).find("scale_estimation.min_inliers"), std::string::npos);
+  o = ScaleEstimationOptions();
+  o.min_inlier_ratio = 1.5;
+  EXPECT_NE(messageOf(o).find("scale_estimation.min_inlier_ratio"), std::string::npos);
+  o = ScaleEstimationOptions();
+  o.max_relative_stddev = 0.0;
+  EXPECT_NE(messageOf(o).find("scale_estimation.max_relative_stddev"), std::string::npos);
+  o = ScaleEstimationOptions();
+  o.passes = 0;
+  EXPECT_NE(messageOf(o).find("scale_estimation.passes"), std::string::npos);
+  o = ScaleEstimationOptions();
+  o.prior_relative_stddev = 0.0;
+  EXPECT_NE(messageOf(o).find("scale_estimation.prior_relative_stddev"), std::string::npos);
+}
+
+TEST(ScaleEstimationTest, StrictLimitsTurnIntoScaleFailed) {
+  const Scenario s = makeScenario(1.0, 30, 0.0, 0.02, 0.002, 21);
+  ScaleEstimationOptions o;
+  o.max_relative_stddev = 1e-6;  // no estimate from 30 noisy matches is that certain
+  const ScaleEstimate e = run(s, o);
+  EXPECT_EQ(e.status, Status::kScaleFailed);
+  EXPECT_GT(e.scale, 0.0);  // the numbers reached are still reported
+  o = ScaleEstimationOptions();
+  o.min_inliers = 30;
+  o.gating_chi2 = 1e-3;  // gate so tight almost everything is rejected
+  EXPECT_EQ(run(s, o).status, Status::kScaleFailed);
+  // One pass works too.
+  o = ScaleEstimationOptions();
+  o.passes = 1;
+  const ScaleEstimate one_pass = run(s, o);
+  ASSERT_EQ(one_pass.status, Status::kOk) << one_pass.message;
+  EXPECT_NEAR(one_pass.scale, 1.0, 0.02);
+}
+
+}  // namespace
+}  // namespace pcr_pro
