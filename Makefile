@@ -2,7 +2,7 @@
 #   make demo   install missing Debian packages, build, run the main job on shipped data
 #   make test   install missing Debian packages, build, run all tests (ctest)
 #   make build  configure (once) and build only
-#   make bench  build and run the benchmarks (BENCH_ARGS=--quick for a short run)
+#   make bench  build and run the benchmarks, regenerate docs/BENCHMARKS.md (BENCH_ARGS=--quick for a short run)
 #   make bundles  regenerate the two-agent test bundles in test/data/bundles
 # Debian's /usr/bin comes first on PATH: a pyenv python3 would break catkin.
 SHELL := /bin/bash
@@ -43,6 +43,21 @@ bench:
 bundles:
 	@scripts/install_deps.sh bundles
 	/usr/bin/python3 scripts/make_bundles.py
+
+# --- hardening (issue 6) -------------------------------------------------------------------
+#   make fuzz           build the libFuzzer targets (clang, build-fuzz/) and run each for FUZZ_SECONDS
+#   make test-sanitize  the unit tests under ASan + UBSan (build-asan/)
+FUZZ_SECONDS ?= 60
+.PHONY: fuzz test-sanitize
+
+fuzz:
+	@scripts/install_deps.sh fuzz
+	FUZZ_SECONDS=$(FUZZ_SECONDS) JOBS=$(JOBS) scripts/fuzz.sh $(FUZZ_TARGETS)
+
+test-sanitize:
+	@scripts/install_deps.sh sanitize
+	JOBS=$(JOBS) scripts/sanitize.sh
+# --- end of hardening ----------------------------------------------------------------------
 
 clean:
 	rm -rf $(BUILD_DIR)

@@ -3,10 +3,13 @@
 # Idempotent: asks apt only for packages that are not installed yet, and runs
 # `apt-get update` only when something is missing. Must run as root (or via sudo).
 #
-# Usage: scripts/install_deps.sh [build|bench|bundles]
+# Usage: scripts/install_deps.sh [build|bench|bundles|fuzz|sanitize|rviz]
 #   build (default)  everything `make build`, `make test` and `make demo` need
 #   bench            additionally what `make bench` needs
 #   bundles          additionally what scripts/make_bundles.py needs (Debian's Python 3)
+#   fuzz             additionally what `make fuzz` needs beyond the default (llvm-symbolizer)
+#   sanitize         additionally what `make test-sanitize` needs beyond the default
+#   rviz             additionally rviz and Xvfb (demo.launch rviz:=true, scripts/rviz_screenshot.sh)
 set -euo pipefail
 
 profile="${1:-build}"
@@ -20,12 +23,27 @@ packages=(
   libeigen3-dev libnanoflann-dev libyaml-cpp-dev libopencv-dev libopengv-dev
   # tests
   libgtest-dev
+  # make test also runs each libFuzzer target briefly: clang 14, its libFuzzer/ASan/UBSan runtimes
+  clang-14 libclang-rt-14-dev
+  # ROS layer (merge node, nodelet, messages, bags, rostest, launch; Debian's ROS 1 under /usr)
+  ros-base-dev ros-message-generation ros-message-runtime python3-genmsg python3-gencpp python3-genpy
+  libroscpp-dev libstd-msgs-dev libsensor-msgs-dev libgeometry-msgs-dev libdiagnostic-msgs-dev
+  ros-std-msgs ros-sensor-msgs ros-geometry-msgs ros-diagnostic-msgs
+  libtf2-ros-dev libdiagnostic-updater-dev libnodelet-dev libnodeletlib-tools pluginlib-dev
+  librosbag-dev python3-rosbag librostest-dev python3-rostest python3-roslaunch rosout rosbash
+  python3-rosservice python3-rostopic
 )
 case "$profile" in
   build) ;;
-  bench) packages+=(libpcl-dev) ;;
+  bench) packages+=(libpcl-dev libopen3d-dev python3 python3-matplotlib python3-numpy) ;;
   bundles) packages+=(python3 python3-numpy python3-opencv python3-yaml) ;;
-  *) echo "install_deps: unknown profile '$profile' (build|bench|bundles)" >&2; exit 2 ;;
+  # make fuzz: the default list has clang; llvm-14 adds llvm-symbolizer for readable reports
+  fuzz) packages+=(llvm-14) ;;
+  # make test-sanitize: g++'s ASan/UBSan runtimes come with g++; llvm-14 for symbolised reports
+  sanitize) packages+=(llvm-14) ;;
+  # demo.launch rviz:=true and scripts/rviz_screenshot.sh
+  rviz) packages+=(rviz xvfb) ;;
+  *) echo "install_deps: unknown profile '$profile' (build|bench|bundles|fuzz|sanitize|rviz)" >&2; exit 2 ;;
 esac
 
 missing=()

@@ -2,10 +2,14 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cctype>
 #include <climits>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <initializer_list>
@@ -256,9 +260,10 @@ std::uint32_t bigEndian32(const unsigned char* p) {
 /**
  * Walks the chunks of a PNG file (lengths, CRCs, IHDR first, IEND present). A truncated or damaged
  * PNG is reported here, with one line, instead of by libpng, which also prints to stderr.
+ * @param[out] size the IHDR width and height when the file is a sound PNG (unchanged otherwise)
  * @return "" when the file is not a PNG or is sound, otherwise what is wrong
  */
-std::string pngDefect(const std::string& path) {
+std::string pngDefect(const std::string& path, cv::Size* size) {
   static const unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
   std::ifstream in(path, std::ios::binary);
   std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -273,43 +278,118 @@ std::string pngDefect(const std::string& path) {
     const std::uint32_t crc = crc32(&bytes[at + 4], 4u + length, 0xffffffffu) ^ 0xffffffffu;
     if (crc != bigEndian32(&bytes[at + 8 + length])) return "damaged PNG (bad CRC in chunk " + oneLine(type) + ")";
     if (first && type != "IHDR") return "damaged PNG (no IHDR chunk first)";
+    if (first && length < 8) return "damaged PNG (IHDR chunk too short)";
+    if (first) {
+      const std::uint32_t width = bigEndian32(&bytes[at + 8]), height = bigEndian32(&bytes[at + 12]);
+      if (width == 0 || height == 0 || width > INT_MAX || height > INT_MAX) return "damaged PNG (IHDR size)";
+      *size = cv::Size(static_cast<int>(width), static_cast<int>(height));
+    }
     first = false;
     at += 12u + length;
     if (type == "IEND") return "";
   }
 }
 
-/// Reads an image file unchanged; errors name the file and the bundle field.
-cv::Mat readImageFile(const std::string& path, const std::string& field) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) throw InputError(path + ": file not found (" + field + ")");
-  if (!fs::is_regular_file(path, ec)) throw InputError(path + ": not a regular file (" + field + ")");
-  const std::string defect = pngDefect(path);
-  if (!defect.empty()) throw InputError(path + ": cannot read image: " + defect + " (" + field + ")");
-  cv::Mat image;
-  try {
-    image = cv::imread(path, cv::IMREAD_UNCHANGED);
-  } catch (const cv::Exception& e) {
-    throw InputError(oneLine(path + ": cannot read image: " + e.what(), 300) + " (" + field + ")");
-  }
-  if (image.empty()) throw InputError(path + ": cannot read image (" + field + ")");
-  return image;
-}
-
-void checkSize(const cv::Mat& image, const PinholeCamera& camera, const std::string& path, const std::string& field) {
-  if (image.cols != camera.width || image.rows != camera.height) {
-    throw InputError(path + ": image is " + std::to_string(image.cols) + "x" + std::to_string(image.rows) +
+void checkSize(int cols, int rows, const PinholeCamera& camera, const std::string& path, const std::string& field) {
+  if (cols != camera.width || rows != camera.height) {
+    throw InputError(path + ": image is " + std::to_string(cols) + "x" + std::to_string(rows) +
                      ", camera.width x camera.height is " + std::to_string(camera.width) + "x" +
                      std::to_string(camera.height) + " (" + field + ")");
   }
 }
 
+/**
+ * Redirects the process's stderr (fd 2) to a temporary file while it lives, and hands back what
+ * was written there. Image decoders print on stderr: libjpeg reports a truncated or damaged JPEG
+ * ("Premature end of JPEG file", "Corrupt JPEG data: ...") as a warning and still returns an
+ * image; libpng prints benign warnings. The offline tools must print exactly one line.
+ * Only for the single-threaded file readers of a bundle (fd 2 is process-wide).
+ */
+class StderrCapture {
+ public:
+  StderrCapture() {
+    std::fflush(stderr);
+    sink_ = std::tmpfile();
+    if (sink_ == nullptr) return;
+    saved_ = ::dup(2);
+    if (saved_ < 0 || ::dup2(::fileno(sink_), 2) < 0) restore();
+  }
+  ~StderrCapture() {
+    restore();
+    if (sink_ != nullptr) std::fclose(sink_);
+  }
+  StderrCapture(const StderrCapture&) = delete;
+  StderrCapture& operator=(const StderrCapture&) = delete;
+
+  /// Restores stderr and returns the first kMax bytes written while captured.
+  std::string finish() {
+    restore();
+    std::string text;
+    if (sink_ == nullptr) return text;
+    std::rewind(sink_);
+    constexpr std::size_t kMax = 300;
+    char buffer[kMax];
+    text.assign(buffer, std::fread(buffer, 1, kMax, sink_));
+    return text;
+  }
+
+ private:
+  void restore() {
+    if (saved_ < 0) return;
+    std::fflush(stderr);
+    ::dup2(saved_, 2);
+    ::close(saved_);
+    saved_ = -1;
+  }
+  std::FILE* sink_ = nullptr;
+  int saved_ = -1;
+};
+
+bool isJpeg(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char magic[3] = {0, 0, 0};
+  in.read(reinterpret_cast<char*>(magic), 3);
+  return in && magic[0] == 0xff && magic[1] == 0xd8 && magic[2] == 0xff;
+}
+
+/// Reads an image file unchanged; errors name the file and the bundle field. A PNG of another size
+/// than the camera's is refused from its header, before it is decoded (bounded memory).
+cv::Mat readImageFile(const std::string& path, const std::string& field, const PinholeCamera& camera) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw InputError(path + ": file not found (" + field + ")");
+  if (!fs::is_regular_file(path, ec)) throw InputError(path + ": not a regular file (" + field + ")");
+  cv::Size png_size(camera.width, camera.height);
+  const std::string defect = pngDefect(path, &png_size);
+  if (!defect.empty()) throw InputError(path + ": cannot read image: " + defect + " (" + field + ")");
+  checkSize(png_size.width, png_size.height, camera, path, field);
+  cv::Mat image;
+  std::string decoder_output;
+  try {
+    StderrCapture capture;
+    image = cv::imread(path, cv::IMREAD_UNCHANGED);
+    decoder_output = capture.finish();
+  } catch (const cv::Exception& e) {
+    throw InputError(oneLine(path + ": cannot read image: " + e.what(), 300) + " (" + field + ")");
+  }
+  if (image.empty()) throw InputError(path + ": cannot read image (" + field + ")");
+  // libjpeg decodes a damaged JPEG with a warning only: that is a corrupt keyframe, not an image.
+  // (Warnings of other decoders, e.g. libpng's about colour profiles, are benign and dropped.)
+  while (!decoder_output.empty() && std::isspace(static_cast<unsigned char>(decoder_output.back()))) {
+    decoder_output.pop_back();
+  }
+  if (!decoder_output.empty() && isJpeg(path)) {
+    throw InputError(oneLine(path + ": cannot read image: damaged JPEG (" + decoder_output, 300) + ") (" + field +
+                     ")");
+  }
+  return image;
+}
+
 cv::Mat loadGreyImage(const std::string& path, const std::string& field, const PinholeCamera& camera) {
-  const cv::Mat raw = readImageFile(path, field);
+  const cv::Mat raw = readImageFile(path, field, camera);
   if (raw.depth() != CV_8U || (raw.channels() != 1 && raw.channels() != 3 && raw.channels() != 4)) {
     throw InputError(path + ": must be an 8-bit grey or colour image, got " + matDescription(raw) + " (" + field + ")");
   }
-  checkSize(raw, camera, path, field);
+  checkSize(raw.cols, raw.rows, camera, path, field);
   cv::Mat grey;
   if (raw.channels() == 1) {
     grey = raw;
@@ -321,12 +401,12 @@ cv::Mat loadGreyImage(const std::string& path, const std::string& field, const P
 
 cv::Mat loadDepthImage(const std::string& path, const std::string& field, const PinholeCamera& camera,
                        double depth_scale) {
-  const cv::Mat raw = readImageFile(path, field);
+  const cv::Mat raw = readImageFile(path, field, camera);
   if (raw.type() != CV_16UC1) {
     throw InputError(path + ": depth image must be 16-bit single-channel, got " + matDescription(raw) + " (" + field +
                      ")");
   }
-  checkSize(raw, camera, path, field);
+  checkSize(raw.cols, raw.rows, camera, path, field);
   cv::Mat depth(raw.rows, raw.cols, CV_32FC1);
   for (int r = 0; r < raw.rows; ++r) {
     const auto* in = raw.ptr<std::uint16_t>(r);
@@ -353,7 +433,7 @@ Sim3 parseSim3(const FieldReader& reader, const YAML::Node& node, const std::str
   return Sim3(scale, q, t);
 }
 
-AgentMap readBundle(const std::string& dir) {
+AgentMap readBundle(const std::string& dir, const InputLimits& limits) {
   std::error_code ec;
   if (!fs::exists(dir, ec)) throw InputError(dir + ": bundle directory not found");
   if (!fs::is_directory(dir, ec))
@@ -383,12 +463,23 @@ AgentMap readBundle(const std::string& dir) {
     map.camera.cy = reader.number(reader.require(cam, "cy"), "camera.cy");
     map.camera.width = reader.positiveInt(reader.require(cam, "width"), "camera.width");
     map.camera.height = reader.positiveInt(reader.require(cam, "height"), "camera.height");
+    const long long pixels = static_cast<long long>(map.camera.width) * map.camera.height;
+    if (pixels > limits.max_image_pixels) {
+      reader.fail("camera.width", cam.node,
+                  "camera.width x camera.height = " + std::to_string(pixels) +
+                      " px, more than limits.max_image_pixels = " + std::to_string(limits.max_image_pixels));
+    }
 
     const YAML::Node& keyframes = reader.require(top, "keyframes");
     if (!keyframes.IsSequence()) {
       reader.fail("keyframes", keyframes, "must be a list of keyframes, got " + describe(keyframes));
     }
     if (keyframes.size() == 0) reader.fail("keyframes", keyframes, "no keyframes (need at least one)");
+    if (static_cast<std::int64_t>(keyframes.size()) > limits.max_keyframes) {
+      reader.fail("keyframes", keyframes,
+                  std::to_string(keyframes.size()) + " keyframes, more than limits.max_keyframes = " +
+                      std::to_string(limits.max_keyframes));
+    }
     std::map<long long, std::size_t> first_index;
     for (std::size_t i = 0; i < keyframes.size(); ++i) {
       const std::string field = element("keyframes", i);
@@ -433,7 +524,7 @@ AgentMap readBundle(const std::string& dir) {
   const std::string cloud_path = (base / cloud_file).string();
   if (!fs::exists(cloud_path, ec)) throw InputError(cloud_path + ": file not found (cloud)");
   try {
-    map.cloud = readCloud(cloud_path);
+    map.cloud = readCloud(cloud_path, limits);
   } catch (const InputError& e) {
     throw InputError(std::string(e.what()) + " (cloud)");
   }
@@ -442,7 +533,7 @@ AgentMap readBundle(const std::string& dir) {
   for (std::size_t i = 0; i < specs.size(); ++i) {
     const KeyframeSpec& spec = specs[i];
     const std::string field = element("keyframes", i);
-    Keyframe kf;
+    MapKeyframe kf;
     kf.id = spec.id;
     kf.pose = spec.pose;
     try {
@@ -490,9 +581,9 @@ BundleTruth readTruth(const std::string& path) {
 
 }  // namespace
 
-AgentMap loadBundle(const std::string& dir) {
+AgentMap loadBundle(const std::string& dir, const InputLimits& limits) {
   try {
-    return readBundle(dir);
+    return readBundle(dir, limits);
   } catch (const InputError& e) {
     // File names and YAML text end up in messages: keep them on one line.
     throw InputError(oneLine(e.what(), 1000));

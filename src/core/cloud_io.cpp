@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <limits>
 #include <sstream>
@@ -13,9 +14,26 @@
 namespace pcr_pro {
 namespace {
 
-// Upper bound on the number of points accepted from one file: keeps a corrupt header from
-// asking for an absurd allocation.
-constexpr std::size_t kMaxPoints = 200u * 1000u * 1000u;
+// Upper bound on any count in a PCD header: keeps a corrupt header from asking for an absurd
+// allocation. The configurable bound on points is InputLimits::max_cloud_points (<= this).
+constexpr std::size_t kMaxPoints = static_cast<std::size_t>(kMaxCloudPointsCeiling);
+
+// Largest expansion of LZF: a 3-byte back reference yields at most 264 bytes.
+constexpr std::size_t kMaxLzfExpansion = 88;
+
+std::string tooManyPoints(const std::string& origin, std::size_t points, const InputLimits& limits) {
+  return origin + ": cloud has " + std::to_string(points) + " points, more than limits.max_cloud_points = " +
+         std::to_string(limits.max_cloud_points);
+}
+
+// Only regular files are read: a device (/dev/zero), a FIFO or a directory would hang the reader
+// or be misreported.
+void requireRegularFile(const std::string& path) {
+  std::error_code ec;
+  const auto status = std::filesystem::status(path, ec);
+  if (!std::filesystem::exists(status)) throw InputError(path + ": cannot open file (missing or unreadable)");
+  if (!std::filesystem::is_regular_file(status)) throw InputError(path + ": not a regular file");
+}
 
 std::string lower(std::string s) {
   std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
@@ -27,6 +45,7 @@ bool endsWith(const std::string& s, const std::string& suffix) {
 }
 
 std::string readWholeFile(const std::string& path) {
+  requireRegularFile(path);
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(path + ": cannot open file (missing or unreadable)");
   std::ostringstream ss;
@@ -202,11 +221,13 @@ PcdHeader parsePcdHeader(const std::string& buf, std::size_t* data_start, const 
 
 }  // namespace
 
-Cloud readPcd(const std::string& path) {
-  const std::string buf = readWholeFile(path);
+Cloud parsePcd(const std::string& buf, const std::string& path, const InputLimits& limits) {
   if (buf.empty()) throw InputError(path + ": file is empty");
   std::size_t data_start = 0;
   const PcdHeader h = parsePcdHeader(buf, &data_start, path);
+  if (h.points > static_cast<std::size_t>(std::max<std::int64_t>(limits.max_cloud_points, 0))) {
+    throw InputError(tooManyPoints(path, h.points, limits) + " (PCD header POINTS/WIDTH x HEIGHT)");
+  }
   int ix = -1, iy = -1, iz = -1;
   for (std::size_t i = 0; i < h.fields.size(); ++i) {
     if (h.fields[i].name == "x") ix = static_cast<int>(i);
@@ -216,7 +237,9 @@ Cloud readPcd(const std::string& path) {
   if (ix < 0 || iy < 0 || iz < 0) throw InputError(path + ": PCD has no x y z fields");
   const int idx[3] = {ix, iy, iz};
   std::vector<double> xyz;
-  xyz.reserve(3 * std::min<std::size_t>(h.points, 10u * 1000u * 1000u));
+  // Never reserve for more points than the data bytes can hold (a lying header costs nothing).
+  const std::size_t data_bytes = buf.size() - data_start;
+  xyz.reserve(3 * std::min<std::size_t>(h.points, data_bytes / std::max<std::size_t>(h.point_step, 1) + 1));
 
   if (h.data == "ascii") {
     // Column index of each field's first element in an ascii row.
@@ -273,6 +296,8 @@ Cloud readPcd(const std::string& path) {
     const std::size_t need = h.points * h.point_step;
     if (usize != need) throw InputError(path + ": PCD compressed data size disagrees with the header");
     if (buf.size() - data_start - 8 < csize) throw InputError(path + ": PCD compressed data truncated");
+    // Checked before allocating: csize bytes of LZF cannot expand beyond 88 x csize.
+    if (need / kMaxLzfExpansion > csize) throw InputError(path + ": PCD compressed data is corrupt (sizes)");
     std::vector<unsigned char> raw(need);
     if (need > 0 &&
         !lzfDecompress(reinterpret_cast<const unsigned char*>(buf.data()) + data_start + 8, csize, raw.data(), need)) {
@@ -297,9 +322,13 @@ Cloud readPcd(const std::string& path) {
   return finitePoints(xyz, path);
 }
 
-Cloud readCsv(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw InputError(path + ": cannot open file (missing or unreadable)");
+Cloud readPcd(const std::string& path, const InputLimits& limits) {
+  return parsePcd(readWholeFile(path), path, limits);
+}
+
+namespace {
+
+Cloud readCsvStream(std::istream& in, const std::string& path, const InputLimits& limits) {
   std::vector<double> xyz;
   int cols[3] = {0, 1, 2};
   std::string line;
@@ -349,15 +378,39 @@ Cloud readCsv(const std::string& path) {
       }
       xyz.push_back(v);
     }
-    if (xyz.size() / 3 > kMaxPoints) throw InputError(path + ": too many points");
+    if (xyz.size() / 3 > static_cast<std::size_t>(std::max<std::int64_t>(limits.max_cloud_points, 0))) {
+      throw InputError(tooManyPoints(path, xyz.size() / 3, limits) + " (line " + std::to_string(line_no) + ")");
+    }
   }
   if (in.bad()) throw InputError(path + ": read error");
   return finitePoints(xyz, path);
 }
 
-Cloud readCloud(const std::string& path) {
-  if (endsWith(lower(path), ".pcd")) return readPcd(path);
-  return readCsv(path);
+}  // namespace
+
+Cloud readCsv(const std::string& path, const InputLimits& limits) {
+  requireRegularFile(path);
+  std::ifstream in(path);
+  if (!in) throw InputError(path + ": cannot open file (missing or unreadable)");
+  return readCsvStream(in, path, limits);
+}
+
+Cloud parseCsv(const std::string& text, const std::string& origin, const InputLimits& limits) {
+  std::istringstream in(text);
+  return readCsvStream(in, origin, limits);
+}
+
+Cloud readCloud(const std::string& path, const InputLimits& limits) {
+  if (endsWith(lower(path), ".pcd")) return readPcd(path, limits);
+  return readCsv(path, limits);
+}
+
+void validate(const InputLimits& limits) {
+  if (!(limits.max_cloud_points >= 1 && limits.max_cloud_points <= kMaxCloudPointsCeiling)) {
+    throw InputError("limits.max_cloud_points must be in [1, " + std::to_string(kMaxCloudPointsCeiling) + "]");
+  }
+  if (!(limits.max_keyframes >= 1)) throw InputError("limits.max_keyframes must be >= 1");
+  if (!(limits.max_image_pixels >= 1)) throw InputError("limits.max_image_pixels must be >= 1");
 }
 
 void writePcd(const std::string& path, const Cloud& cloud) {

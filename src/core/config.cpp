@@ -4,6 +4,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <filesystem>
 #include <fstream>
 #include <set>
 #include <sstream>
@@ -86,6 +87,11 @@ IcpOptions loadIcp(const YAML::Node& node, const std::string& origin) {
   IcpOptions o;
   Block icp(node, "icp", origin);
   {
+    Block b(icp.child("sampling"), "icp.sampling", origin);
+    b.get("max_source_points", &o.max_source_points);
+    b.finish();
+  }
+  {
     Block b(icp.child("matcher"), "icp.matcher", origin);
     b.get("normal_neighbors", &o.normal_neighbors);
     b.finish();
@@ -124,6 +130,11 @@ IcpOptions loadIcp(const YAML::Node& node, const std::string& origin) {
 CovarianceOptions loadCovariance(const YAML::Node& node, const std::string& origin) {
   CovarianceOptions o;
   Block b(node, "covariance", origin);
+  std::string model = covarianceModelName(o.model);
+  b.get("model", &model);
+  if (!parseCovarianceModel(model, &o.model)) b.fail("covariance.model", "must be closed_form or calibrated");
+  b.get("calibration_splits", &o.calibration_splits);
+  b.get("calibration_max_points", &o.calibration_max_points);
   b.get("sensor_noise_stddev", &o.sensor_noise_stddev);
   b.get("degeneracy_condition_threshold", &o.degeneracy_condition_threshold);
   b.get("normal_neighbors", &o.normal_neighbors);
@@ -143,6 +154,12 @@ YAML::Node parseYaml(const std::string& text, const std::string& origin) {
 }
 
 std::string readConfigFile(const std::string& path) {
+  // Only a regular file: a device or FIFO (--config /dev/zero) would never end.
+  std::error_code ec;
+  const auto status = std::filesystem::status(path, ec);
+  if (std::filesystem::exists(status) && !std::filesystem::is_regular_file(status)) {
+    throw InputError(path + ": configuration file is not a regular file");
+  }
   std::ifstream in(path);
   if (!in) throw InputError(path + ": cannot open configuration file");
   std::stringstream ss;

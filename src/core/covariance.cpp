@@ -1,10 +1,18 @@
 #include "pcr_pro/core/covariance.h"
 
+#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <numeric>
+#include <random>
 #include <sstream>
+#include <unordered_set>
+#include <vector>
 
 #include "pcr_pro/core/kdtree.h"
 #include "pcr_pro/core/normals.h"
@@ -29,7 +37,132 @@ Matrix7d centroidToOrigin(const Eigen::Vector3d& c, double rho) {
 
 const char* kDirectionNames[7] = {"x", "y", "z", "rot_x", "rot_y", "rot_z", "scale"};
 
+// Left-perturbation pose difference δ with a = exp(δ) b, to first order (x y z rot_x rot_y rot_z).
+Vector6d poseDifference(const Sim3& a, const Sim3& b) {
+  const Eigen::Matrix3d dr = a.rotation() * b.rotation().transpose();
+  const Eigen::AngleAxisd aa(dr);
+  Vector6d d;
+  d.head<3>() = a.translation() - (a.scale() / b.scale()) * dr * b.translation();
+  d.tail<3>() = aa.angle() * aa.axis();
+  return d;
+}
+
+// The distinct matched target points (several source points may share one).
+Cloud distinctTargets(const Cloud& targets) {
+  struct Hash {
+    std::size_t operator()(const Eigen::Vector3d& p) const {
+      std::size_t h = 0;
+      for (int k = 0; k < 3; ++k) {
+        std::uint64_t bits = 0;
+        const double v = p(k);
+        std::memcpy(&bits, &v, sizeof bits);
+        h ^= std::hash<std::uint64_t>()(bits) + 0x9e3779b97f4a7c15ULL + (h << 6) + (h >> 2);
+      }
+      return h;
+    }
+  };
+  std::unordered_set<Eigen::Vector3d, Hash> seen;
+  seen.reserve(static_cast<std::size_t>(targets.cols()));
+  Cloud out(3, targets.cols());
+  Eigen::Index k = 0;
+  for (Eigen::Index i = 0; i < targets.cols(); ++i) {
+    if (seen.insert(targets.col(i)).second) out.col(k++) = targets.col(i);
+  }
+  return out.leftCols(k);
+}
+
+Cloud pick(const Cloud& cloud, const std::vector<Eigen::Index>& order, std::size_t begin, std::size_t end) {
+  Cloud out(3, static_cast<Eigen::Index>(end - begin));
+  for (std::size_t i = begin; i < end; ++i) out.col(static_cast<Eigen::Index>(i - begin)) = cloud.col(order[i]);
+  return out;
+}
+
+struct Calibration {
+  double kappa = 1.0;  // mean split-sample NEES per degree of freedom
+  int splits = 0;      // splits that contributed
+};
+
+// Split-sample calibration (see covariance.h): re-registers disjoint random halves of the
+// matched source and target points from the converged pose and compares their disagreement
+// with the closed-form prediction.
+Calibration splitSampleCalibration(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
+                                   bool with_scale, const CovarianceOptions& o) {
+  Calibration cal;
+  const Cloud targets = distinctTargets(matches.target);
+  std::mt19937 rng(12345u);
+  std::vector<Eigen::Index> src_order(static_cast<std::size_t>(matches.source.cols()));
+  std::vector<Eigen::Index> tgt_order(static_cast<std::size_t>(targets.cols()));
+  IcpOptions io;
+  io.error_metric = metric;
+  io.estimate_scale = with_scale;
+  io.max_source_points = 0;
+  io.trim_ratio = 1.0;       // the matches are already the kept (trimmed) ones
+  io.max_iterations = 8;     // the halves start at the converged pose: a few re-matchings suffice
+  io.normal_neighbors = o.normal_neighbors;
+  CovarianceOptions closed = o;
+  closed.model = CovarianceModel::kClosedForm;
+  const auto cap = [&](std::size_t size) {
+    return o.calibration_max_points > 0 ? std::min(size, static_cast<std::size_t>(o.calibration_max_points)) : size;
+  };
+  const std::size_t ns = cap(src_order.size()), nt = cap(tgt_order.size());
+  double sum = 0.0;
+  for (int split = 0; split < o.calibration_splits; ++split) {
+    std::iota(src_order.begin(), src_order.end(), 0);
+    std::iota(tgt_order.begin(), tgt_order.end(), 0);
+    std::shuffle(src_order.begin(), src_order.end(), rng);
+    std::shuffle(tgt_order.begin(), tgt_order.end(), rng);
+    Sim3 est[2];
+    Matrix6d cov[2];
+    bool ok = true;
+    for (int half = 0; half < 2 && ok; ++half) {
+      const Cloud src = pick(matches.source, src_order, half * ns / 2, (half + 1) * ns / 2);
+      const Cloud tgt = pick(targets, tgt_order, half * nt / 2, (half + 1) * nt / 2);
+      if (src.cols() < 20 || tgt.cols() < 20) {
+        ok = false;
+        break;
+      }
+      const IcpResult r = alignIcp(src, tgt, transform, io);
+      // An iteration-capped half still measures the disagreement; too few matches does not.
+      if (r.correspondences < io.min_correspondences || !r.transform.matrix().allFinite()) {
+        ok = false;
+        break;
+      }
+      const CovarianceResult c = computeIcpCovariance(r.matches, r.transform, metric, with_scale, closed);
+      if (c.status != Status::kOk) {
+        ok = false;
+        break;
+      }
+      est[half] = r.transform;
+      cov[half] = c.covariance;
+    }
+    if (!ok) continue;
+    const Vector6d d = poseDifference(est[0], est[1]);
+    const Eigen::LDLT<Matrix6d> ldlt(cov[0] + cov[1]);
+    if (ldlt.info() != Eigen::Success) continue;
+    sum += d.dot(ldlt.solve(d)) / 6.0;
+    ++cal.splits;
+  }
+  if (cal.splits > 0) cal.kappa = sum / cal.splits;
+  return cal;
+}
+
 }  // namespace
+
+const char* covarianceModelName(CovarianceModel model) {
+  return model == CovarianceModel::kClosedForm ? "closed_form" : "calibrated";
+}
+
+bool parseCovarianceModel(const std::string& name, CovarianceModel* model) {
+  if (name == "closed_form") {
+    *model = CovarianceModel::kClosedForm;
+    return true;
+  }
+  if (name == "calibrated") {
+    *model = CovarianceModel::kCalibrated;
+    return true;
+  }
+  return false;
+}
 
 void validate(const CovarianceOptions& o) {
   if (!(o.sensor_noise_stddev >= 0.0) || !std::isfinite(o.sensor_noise_stddev)) {
@@ -37,6 +170,10 @@ void validate(const CovarianceOptions& o) {
   }
   if (!(o.degeneracy_condition_threshold > 1.0)) throw InputError("covariance.degeneracy_condition_threshold must be > 1");
   if (o.normal_neighbors < 3) throw InputError("covariance.normal_neighbors must be >= 3");
+  if (o.calibration_splits < 1) throw InputError("covariance.calibration_splits must be >= 1");
+  if (o.calibration_max_points < 0 || (o.calibration_max_points > 0 && o.calibration_max_points < 100)) {
+    throw InputError("covariance.calibration_max_points must be 0 or >= 100");
+  }
 }
 
 CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
@@ -140,6 +277,12 @@ CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3
   const Eigen::MatrixXd h_o_inv = h_o.inverse();
   Eigen::MatrixXd cov_o = sigma2 * h_o_inv * (g_o + h_o) * h_o_inv;
   cov_o = 0.5 * (cov_o + cov_o.transpose()).eval();
+  if (o.model == CovarianceModel::kCalibrated) {
+    const Calibration cal = splitSampleCalibration(matches, transform, metric, with_scale, o);
+    res.inflation = std::max(1.0, cal.kappa);
+    res.calibration_splits_used = cal.splits;
+    cov_o *= res.inflation;
+  }
   const Eigen::MatrixXd info_o = cov_o.inverse();
 
   // Back to u (d x d): unobservable directions get an effectively unbounded variance and no
@@ -189,8 +332,11 @@ CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3
   } else {
     res.status = Status::kOk;
     std::ostringstream msg;
-    msg << "covariance from " << n << " correspondences, noise " << res.noise_stddev << ", condition number "
-        << res.condition_number;
+    msg << "covariance (" << covarianceModelName(o.model) << ") from " << n << " correspondences, noise "
+        << res.noise_stddev << ", condition number " << res.condition_number;
+    if (o.model == CovarianceModel::kCalibrated) {
+      msg << ", inflation " << res.inflation << " from " << res.calibration_splits_used << " split(s)";
+    }
     res.message = msg.str();
   }
   return res;

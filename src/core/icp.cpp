@@ -8,6 +8,7 @@
 #include <limits>
 #include <vector>
 
+#include "pcr_pro/core/filters.h"
 #include "pcr_pro/core/kdtree.h"
 #include "pcr_pro/core/normals.h"
 
@@ -148,6 +149,7 @@ bool parseErrorMetric(const std::string& name, ErrorMetric* metric) {
 }
 
 void validate(const IcpOptions& o) {
+  if (o.max_source_points < 0) throw InputError("icp.sampling.max_source_points must be >= 0");
   if (o.normal_neighbors < 3) throw InputError("icp.matcher.normal_neighbors must be >= 3");
   if (!(o.max_correspondence_distance >= 0.0)) {
     throw InputError("icp.outlier_rejection.max_correspondence_distance must be >= 0");
@@ -190,9 +192,12 @@ Sim3 umeyama(const Cloud& src, const Cloud& dst, bool with_scale) {
   return Sim3(s, r, mu_d - s * (r * mu_s));
 }
 
-IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial, const IcpOptions& o) {
+IcpResult alignIcp(const Cloud& source_in, const Cloud& target, const Sim3& initial, const IcpOptions& o) {
   validate(o);
-  if (source.cols() == 0) throw InputError("icp: source cloud is empty");
+  if (source_in.cols() == 0) throw InputError("icp: source cloud is empty");
+  MaxPointsOptions sampling;
+  sampling.max_points = o.max_source_points;
+  const Cloud source = maxPointsFilter(source_in, sampling);
   if (target.cols() == 0) throw InputError("icp: target cloud is empty");
   IcpResult result;
   KdTree tree(target);

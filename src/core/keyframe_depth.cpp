@@ -33,7 +33,7 @@ void validate(const KeyframeDepthOptions& o) {
   }
 }
 
-KeyframeDepth::KeyframeDepth(const Keyframe& keyframe, const PinholeCamera& camera, const Cloud& map_cloud,
+KeyframeDepth::KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& camera, const Cloud& map_cloud,
                              const KeyframeDepthOptions& options)
     : camera_(camera), options_(options) {
   validate(options_);

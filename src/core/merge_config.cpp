@@ -89,6 +89,17 @@ MergeGateOptions loadGates(const YAML::Node& node, const std::string& origin) {
   return o;
 }
 
+InputLimits loadLimits(const YAML::Node& node, const std::string& origin) {
+  InputLimits o;
+  Block b(node, "limits", origin);
+  b.get("max_cloud_points", &o.max_cloud_points);
+  b.get("max_keyframes", &o.max_keyframes);
+  b.get("max_image_pixels", &o.max_image_pixels);
+  b.finish();
+  validateIn(o, origin);
+  return o;
+}
+
 }  // namespace
 
 void validate(const MergeGateOptions& o) {
@@ -107,6 +118,7 @@ void validate(const MergeOptions& o) {
   validate(o.scale_estimation);
   validate(o.merge);
   validate(o.registration);
+  validate(o.limits);
 }
 
 MergeOptions parseMergeConfig(const std::string& text, const std::string& origin) {
@@ -122,6 +134,7 @@ MergeOptions parseMergeConfig(const std::string& text, const std::string& origin
     o.scale_estimation = loadScaleEstimation(top.child("scale_estimation"), origin);
     o.merge = loadGates(top.child("merge"), origin);
     config_detail::loadRegistrationBlocks(&top, &o.registration);
+    o.limits = loadLimits(top.child("limits"), origin);
     top.finish();
   } catch (const YAML::Exception& e) {
     throw InputError(origin + ": malformed configuration: " + e.msg);

@@ -28,7 +28,7 @@ std::string fmt(double v, int precision = 3) {
 
 // A keyframe and its SIFT features.
 struct KeyframeEntry {
-  const Keyframe* keyframe = nullptr;
+  const MapKeyframe* keyframe = nullptr;
   KeyframeFeatures features;
 };
 
@@ -36,7 +36,7 @@ struct KeyframeEntry {
 std::vector<KeyframeEntry> selectKeyframes(const AgentMap& map, const std::optional<long>& id, const char* which,
                                            std::string* error) {
   std::vector<KeyframeEntry> out;
-  for (const Keyframe& kf : map.keyframes) {
+  for (const MapKeyframe& kf : map.keyframes) {
     if (!id || kf.id == *id) out.push_back(KeyframeEntry{&kf, {}});
   }
   if (out.empty()) {
@@ -49,7 +49,7 @@ std::vector<KeyframeEntry> selectKeyframes(const AgentMap& map, const std::optio
 std::string checkMap(const AgentMap& map, const char* which) {
   if (!map.camera.valid()) return std::string(which) + " map: invalid camera intrinsics or image size";
   if (map.cloud.cols() == 0) return std::string(which) + " map: empty cloud";
-  for (const Keyframe& kf : map.keyframes) {
+  for (const MapKeyframe& kf : map.keyframes) {
     if (kf.image.empty() || kf.image.type() != CV_8UC1) {
       return std::string(which) + " keyframe " + std::to_string(kf.id) + ": image missing or not 8-bit grey";
     }
@@ -181,8 +181,8 @@ MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const Merg
                               " tried); best pair source " + std::to_string(c.source->keyframe->id) + " / target " +
                               std::to_string(c.target->keyframe->id) + ": " + c.pose.message);
   }
-  const Keyframe& kf_s = *best->source->keyframe;
-  const Keyframe& kf_t = *best->target->keyframe;
+  const MapKeyframe& kf_s = *best->source->keyframe;
+  const MapKeyframe& kf_t = *best->target->keyframe;
   rep.source_keyframe = kf_s.id;
   rep.target_keyframe = kf_t.id;
   diag.feature_matches = static_cast<int>(best->matches.size());

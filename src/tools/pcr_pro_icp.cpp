@@ -45,14 +45,19 @@ int run(int argc, char** argv) {
   const std::string source_path = args.required("--source");
   const std::string target_path = args.required("--target");
   RegistrationOptions options;
+  InputLimits limits;
   // The merge configuration schema is accepted too (its front-end blocks are validated, unused).
-  if (const auto config = args.value("--config")) options = loadMergeConfig(*config).registration;
+  if (const auto config = args.value("--config")) {
+    const MergeOptions merge_options = loadMergeConfig(*config);
+    options = merge_options.registration;
+    limits = merge_options.limits;
+  }
   if (args.flag("--estimate-scale")) options.icp.estimate_scale = true;
   std::optional<Sim3> initial;
   if (const auto init = args.value("--initial")) initial = parseInitial(*init);
 
-  const Cloud source = readCloud(source_path);
-  const Cloud target = readCloud(target_path);
+  const Cloud source = readCloud(source_path, limits);
+  const Cloud target = readCloud(target_path, limits);
   const RegistrationReport report = registerClouds(source, target, initial, options);
   const std::string yaml = toYaml(report);
   std::cout << yaml << std::flush;
@@ -70,13 +75,13 @@ int main(int argc, char** argv) {
   try {
     return run(argc, argv);
   } catch (const pcr_pro::tools::UsageError& e) {
-    std::cerr << "pcr_pro_icp: " << e.what() << "\n";
+    pcr_pro::tools::printError("pcr_pro_icp", e.what());
   } catch (const pcr_pro::InputError& e) {
-    std::cerr << "pcr_pro_icp: " << e.what() << "\n";
+    pcr_pro::tools::printError("pcr_pro_icp", e.what());
   } catch (const std::bad_alloc&) {
-    std::cerr << "pcr_pro_icp: out of memory (input too large?)\n";
+    pcr_pro::tools::printError("pcr_pro_icp", "out of memory (input too large?)");
   } catch (const std::exception& e) {
-    std::cerr << "pcr_pro_icp: error: " << e.what() << "\n";
+    pcr_pro::tools::printError("pcr_pro_icp", std::string("error: ") + e.what());
   }
   return 2;
 }

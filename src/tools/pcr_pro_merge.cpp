@@ -44,13 +44,13 @@ int run(int argc, char** argv) {
   if (const auto id = args.value("--source-keyframe")) request.source_keyframe = parseId("--source-keyframe", *id);
   if (const auto id = args.value("--target-keyframe")) request.target_keyframe = parseId("--target-keyframe", *id);
 
-  const AgentMap source = loadBundle(source_dir);
-  const AgentMap target = loadBundle(target_dir);
+  const AgentMap source = loadBundle(source_dir, options.limits);
+  const AgentMap target = loadBundle(target_dir, options.limits);
   for (const auto& [id, map, dir] : {std::tuple{request.source_keyframe, &source, source_dir},
                                      std::tuple{request.target_keyframe, &target, target_dir}}) {
     if (!id) continue;
     bool found = false;
-    for (const Keyframe& kf : map->keyframes) found = found || kf.id == *id;
+    for (const MapKeyframe& kf : map->keyframes) found = found || kf.id == *id;
     if (!found) throw InputError(dir + "/bundle.yaml: keyframes: no keyframe with id " + std::to_string(*id));
   }
   const MergeResult result = mergeMaps(source, target, request, options);
@@ -78,13 +78,13 @@ int main(int argc, char** argv) {
   try {
     return run(argc, argv);
   } catch (const pcr_pro::tools::UsageError& e) {
-    std::cerr << "pcr_pro_merge: " << e.what() << "\n";
+    pcr_pro::tools::printError("pcr_pro_merge", e.what());
   } catch (const pcr_pro::InputError& e) {
-    std::cerr << "pcr_pro_merge: " << e.what() << "\n";
+    pcr_pro::tools::printError("pcr_pro_merge", e.what());
   } catch (const std::bad_alloc&) {
-    std::cerr << "pcr_pro_merge: out of memory (input too large?)\n";
+    pcr_pro::tools::printError("pcr_pro_merge", "out of memory (input too large?)");
   } catch (const std::exception& e) {
-    std::cerr << "pcr_pro_merge: error: " << e.what() << "\n";
+    pcr_pro::tools::printError("pcr_pro_merge", std::string("error: ") + e.what());
   }
   return 2;
 }

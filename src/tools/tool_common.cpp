@@ -2,6 +2,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 
 #include "pcr_pro/core/cloud_io.h"
 
@@ -47,6 +48,19 @@ void writeOutputs(const std::string& dir, const std::string& yaml, const Cloud& 
 }
 
 int exitStatus(const RegistrationReport& report) { return report.status == Status::kOk ? 0 : 1; }
+
+void printError(const char* tool, const std::string& message) {
+  constexpr std::size_t kMaxLength = 2000;
+  std::string line = std::string(tool) + ": ";
+  for (char c : message) {
+    if (line.size() >= kMaxLength) {
+      line += "...";
+      break;
+    }
+    line += (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) ? ' ' : c;
+  }
+  std::cerr << line << "\n" << std::flush;
+}
 
 }  // namespace tools
 }  // namespace pcr_pro

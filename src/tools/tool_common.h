@@ -38,5 +38,9 @@ void writeOutputs(const std::string& dir, const std::string& yaml, const Cloud& 
 /// @return exit status of the contract for a report: 0 when OK, 1 otherwise
 int exitStatus(const RegistrationReport& report);
 
+/// Prints "<tool>: <message>" as exactly one line on stderr: control characters (from file names
+/// or file contents quoted in the message) become spaces, and the length is bounded.
+void printError(const char* tool, const std::string& message);
+
 }  // namespace tools
 }  // namespace pcr_pro

@@ -99,7 +99,7 @@ TEST_P(GeneratedBundle, CameraKeyframesAndPoses) {
 
   ASSERT_EQ(map.keyframes.size(), e.ids.size());
   for (std::size_t i = 0; i < e.ids.size(); ++i) {
-    const Keyframe& kf = map.keyframes[i];
+    const MapKeyframe& kf = map.keyframes[i];
     EXPECT_EQ(kf.id, e.ids[i]);
     EXPECT_EQ(kf.image.type(), CV_8UC1);
     EXPECT_EQ(kf.image.cols, e.width);
@@ -119,7 +119,7 @@ TEST_P(GeneratedBundle, ImagesAndDepthAreTheSourceFrames) {
   const Expected& e = GetParam();
   const AgentMap map = loadBundle(bundleDir(e.test_case, e.agent));
   const cv::Rect window(e.crop_x0, 0, e.width, 480);
-  for (const Keyframe& kf : map.keyframes) {
+  for (const MapKeyframe& kf : map.keyframes) {
     SCOPED_TRACE("keyframe " + std::to_string(kf.id));
     const cv::Mat grey = sourceGrey(kf.id);
     ASSERT_FALSE(grey.empty());
@@ -141,7 +141,7 @@ TEST_P(GeneratedBundle, MapCloudReprojectsIntoEveryKeyframe) {
   const AgentMap with_depth = e.depth ? map : loadBundle(bundleDir("depth", e.agent));
   ASSERT_EQ(with_depth.keyframes.size(), map.keyframes.size());
   for (std::size_t k = 0; k < map.keyframes.size(); ++k) {
-    const Keyframe& kf = map.keyframes[k];
+    const MapKeyframe& kf = map.keyframes[k];
     const cv::Mat& depth = with_depth.keyframes[k].depth;
     SCOPED_TRACE("keyframe " + std::to_string(kf.id));
     ASSERT_FALSE(depth.empty());
@@ -243,15 +243,15 @@ TEST_P(GeneratedTruth, TransformAgreesWithPoseTxtAndKeyframes) {
   }
   // Every keyframe of A sits where G_a puts the pose.txt camera; every keyframe of B, mapped by
   // S_target_source, lands there too (camera centre and orientation, in A's units = metres).
-  auto check = [&](const Keyframe& kf, const Sim3& in_target) {
+  auto check = [&](const MapKeyframe& kf, const Sim3& in_target) {
     SCOPED_TRACE("keyframe " + std::to_string(kf.id));
     const Sim3 expected = truth.world_to_target * world.at(kf.id);
     EXPECT_NEAR(in_target.scale(), expected.scale(), 1e-9);
     EXPECT_LT((in_target.translation() - expected.translation()).norm(), 1e-8);
     EXPECT_LT(rotationDistance(in_target.rotation(), expected.rotation()), 1e-8);
   };
-  for (const Keyframe& kf : a.keyframes) check(kf, kf.pose);
-  for (const Keyframe& kf : b.keyframes) check(kf, truth.target_source * kf.pose);
+  for (const MapKeyframe& kf : a.keyframes) check(kf, kf.pose);
+  for (const MapKeyframe& kf : b.keyframes) check(kf, truth.target_source * kf.pose);
 
   // The clouds: under the true transform, B's map lies on A's map where the views overlap and
   // nowhere near it in the no-overlap case. A wrong transform (B's map taken as is) must not fit.
@@ -351,8 +351,8 @@ TEST_F(TempBundle, ValidBundleLoads) {
   EXPECT_EQ(map.cloud.cols(), 4);
   EXPECT_DOUBLE_EQ(map.camera.fy, 110.0);
   ASSERT_EQ(map.keyframes.size(), 2u);
-  const Keyframe& a = map.keyframes[0];
-  const Keyframe& b = map.keyframes[1];
+  const MapKeyframe& a = map.keyframes[0];
+  const MapKeyframe& b = map.keyframes[1];
   EXPECT_EQ(a.id, 7);
   EXPECT_EQ(b.id, 9);
   EXPECT_DOUBLE_EQ(a.pose.scale(), 0.5);

@@ -24,6 +24,7 @@ TEST(Config, ShippedFileLoadsAndStatesTheStructDefaults) {
   EXPECT_EQ(shipped.scale_detection.trim_fraction, d.scale_detection.trim_fraction);
   EXPECT_EQ(shipped.scale_detection.ratio_threshold, d.scale_detection.ratio_threshold);
   EXPECT_EQ(shipped.filters.steps.size(), d.filters.steps.size());
+  EXPECT_EQ(shipped.icp.max_source_points, d.icp.max_source_points);
   EXPECT_EQ(shipped.icp.normal_neighbors, d.icp.normal_neighbors);
   EXPECT_EQ(shipped.icp.max_correspondence_distance, d.icp.max_correspondence_distance);
   EXPECT_EQ(shipped.icp.trim_ratio, d.icp.trim_ratio);

@@ -27,8 +27,8 @@ PinholeCamera testCamera() {
   return cam;
 }
 
-Keyframe testKeyframe() {
-  Keyframe kf;
+MapKeyframe testKeyframe() {
+  MapKeyframe kf;
   kf.id = 7;
   kf.pose = Sim3(kPoseScale, expSO3(Eigen::Vector3d(0.1, -0.2, 0.3)), Eigen::Vector3d(1.0, -2.0, 0.5));
   return kf;
@@ -56,7 +56,7 @@ std::vector<Eigen::Vector3d> planeCameraPoints(const PinholeCamera& cam) {
   return pts;
 }
 
-Cloud toMapCloud(const Keyframe& kf, const std::vector<Eigen::Vector3d>& camera_points) {
+Cloud toMapCloud(const MapKeyframe& kf, const std::vector<Eigen::Vector3d>& camera_points) {
   Cloud cloud(3, static_cast<Eigen::Index>(camera_points.size()));
   for (size_t i = 0; i < camera_points.size(); ++i)
     cloud.col(static_cast<Eigen::Index>(i)) = kf.pose.apply(camera_points[i]);
@@ -76,7 +76,7 @@ void expectNear(const Eigen::Vector3d& actual, const Eigen::Vector3d& expected, 
 
 TEST(KeyframeDepthTest, ProjectedCloudGivesCameraPointsInMapUnits) {
   const PinholeCamera cam = testCamera();
-  const Keyframe kf = testKeyframe();
+  const MapKeyframe kf = testKeyframe();
   const std::vector<Eigen::Vector3d> pts = planeCameraPoints(cam);
   const KeyframeDepth depth(kf, cam, toMapCloud(kf, pts), KeyframeDepthOptions());
   EXPECT_FALSE(depth.usesDepthImage());
@@ -108,7 +108,7 @@ TEST(KeyframeDepthTest, ProjectedCloudGivesCameraPointsInMapUnits) {
 
 TEST(KeyframeDepthTest, PixelsWithoutNearbyProjectionFail) {
   const PinholeCamera cam = testCamera();
-  const Keyframe kf = testKeyframe();
+  const MapKeyframe kf = testKeyframe();
   const KeyframeDepth depth(kf, cam, toMapCloud(kf, planeCameraPoints(cam)), KeyframeDepthOptions());
   Eigen::Vector3d p(42.0, 42.0, 42.0);
   // Far from the plane's pixel rectangle.
@@ -136,7 +136,7 @@ TEST(KeyframeDepthTest, PixelsWithoutNearbyProjectionFail) {
 
 TEST(KeyframeDepthTest, NearerPointsWinTheZBuffer) {
   const PinholeCamera cam = testCamera();
-  const Keyframe kf = testKeyframe();
+  const MapKeyframe kf = testKeyframe();
   const std::vector<Eigen::Vector3d> plane = planeCameraPoints(cam);
   // Occluded points behind the plane on the same rays, before and after the plane in the cloud.
   std::vector<Eigen::Vector3d> pts;
@@ -165,7 +165,7 @@ TEST(KeyframeDepthTest, NearerPointsWinTheZBuffer) {
 
 TEST(KeyframeDepthTest, InconsistentNeighbourhoodIsRejected) {
   const PinholeCamera cam = testCamera();
-  const Keyframe kf = testKeyframe();
+  const MapKeyframe kf = testKeyframe();
   // Two neighbouring pixels outside the plane: a near point and a far one (a depth edge).
   std::vector<Eigen::Vector3d> pts = planeCameraPoints(cam);
   pts.push_back(cameraPoint(cam, 260.0, 60.0, 2.0));
@@ -200,7 +200,7 @@ cv::Mat renderDepth(const PinholeCamera& cam) {
 
 TEST(KeyframeDepthTest, DepthImageAgreesWithProjectedCloud) {
   const PinholeCamera cam = testCamera();
-  Keyframe kf = testKeyframe();
+  MapKeyframe kf = testKeyframe();
   const Cloud cloud = toMapCloud(kf, planeCameraPoints(cam));
   const KeyframeDepth projected(kf, cam, cloud, KeyframeDepthOptions());
   kf.depth = renderDepth(cam);
@@ -244,7 +244,7 @@ TEST(KeyframeDepthTest, DepthImageAgreesWithProjectedCloud) {
 
 TEST(KeyframeDepthTest, DepthRangeLimitsApply) {
   const PinholeCamera cam = testCamera();
-  Keyframe kf = testKeyframe();
+  MapKeyframe kf = testKeyframe();
   KeyframeDepthOptions options;
   options.min_depth = 4.0;  // the plane's depth spans about [3.91, 4.26]
   options.max_depth = 4.15;
@@ -279,7 +279,7 @@ TEST(KeyframeDepthTest, DepthRangeLimitsApply) {
 
 TEST(KeyframeDepthTest, CloudSubsamplingAndPointsBehindCamera) {
   const PinholeCamera cam = testCamera();
-  const Keyframe kf = testKeyframe();
+  const MapKeyframe kf = testKeyframe();
   std::vector<Eigen::Vector3d> pts = planeCameraPoints(cam);
   const size_t n_plane = pts.size();
   // Behind the camera, and non-finite: never projected.
@@ -305,7 +305,7 @@ TEST(KeyframeDepthTest, CloudSubsamplingAndPointsBehindCamera) {
 
 TEST(KeyframeDepthTest, LookupsAreBoundsSafe) {
   const PinholeCamera cam = testCamera();
-  Keyframe kf = testKeyframe();
+  MapKeyframe kf = testKeyframe();
   kf.depth = cv::Mat(cam.height, cam.width, CV_32FC1, cv::Scalar(3.0f));  // every pixel valid
   KeyframeDepthOptions options;
   options.neighborhood_radius_px = 5;
@@ -329,7 +329,7 @@ TEST(KeyframeDepthTest, LookupsAreBoundsSafe) {
 
 TEST(KeyframeDepthTest, InvalidInputThrows) {
   const PinholeCamera cam = testCamera();
-  Keyframe kf = testKeyframe();
+  MapKeyframe kf = testKeyframe();
   const Cloud cloud = toMapCloud(kf, planeCameraPoints(cam));
 
   kf.depth = cv::Mat(cam.height, cam.width + 1, CV_32FC1, cv::Scalar(1.0f));
@@ -344,7 +344,7 @@ TEST(KeyframeDepthTest, InvalidInputThrows) {
   bad_cam.fx = 0.0;
   EXPECT_THROW(KeyframeDepth(kf, bad_cam, cloud, KeyframeDepthOptions()), InputError);
 
-  Keyframe bad_pose = kf;
+  MapKeyframe bad_pose = kf;
   bad_pose.pose = Sim3(0.0, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero());
   EXPECT_THROW(KeyframeDepth(bad_pose, cam, cloud, KeyframeDepthOptions()), InputError);
   bad_pose.pose = Sim3(std::nan(""), Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero());

@@ -25,7 +25,7 @@ constexpr double kTranslationTol = 0.12;
 AgentMap rescaled(const AgentMap& map, double factor) {
   AgentMap out = map;
   out.cloud *= factor;
-  for (Keyframe& kf : out.keyframes) {
+  for (MapKeyframe& kf : out.keyframes) {
     kf.pose = Sim3(factor, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero()) * kf.pose;
   }
   return out;

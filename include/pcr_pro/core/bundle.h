@@ -8,6 +8,7 @@
 #include <map>
 #include <string>
 
+#include "pcr_pro/core/input_limits.h"
 #include "pcr_pro/core/map_types.h"
 #include "pcr_pro/core/sim3.h"
 
@@ -26,14 +27,20 @@ namespace pcr_pro {
  * value / depth_scale [camera units]; 0 stays 0 (unknown). A keyframe without depth gets an empty
  * depth matrix. frame_id defaults to "map" and pose.scale to 1.
  *
+ * Resource bounds (limits): more than limits.max_keyframes keyframes, a camera of more than
+ * limits.max_image_pixels pixels or a cloud of more than limits.max_cloud_points points is refused
+ * with an InputError naming the field and the limit; a PNG whose header size is not the camera's
+ * is refused before it is decoded.
+ *
  * @param[in] dir bundle directory
+ * @param[in] limits resource bounds
  * @return the agent's map: frame id, map cloud [map units], camera, keyframes in file order
  * @throw InputError with a one-line message naming the file and the field at fault, e.g.
  *   "bundles/a/bundle.yaml: keyframes[2].pose.scale: must be > 0, got 0 (line 23)" or
  *   "bundles/a/keyframes/3.png: cannot read image (keyframes[0].image)". Errors of the map cloud
  *   are those of readCloud() followed by " (cloud)".
  */
-AgentMap loadBundle(const std::string& dir);
+AgentMap loadBundle(const std::string& dir, const InputLimits& limits = InputLimits());
 
 /**
  * @brief Ground truth of a generated two-agent case (test/data/bundles/CASE/truth.yaml,

@@ -23,6 +23,10 @@ bool parseErrorMetric(const std::string& name, ErrorMetric* metric);
 
 /// Options of the ICP chain; each block mirrors one stage of config/icp.yaml.
 struct IcpOptions {
+  // --- sampling
+  /// The source is randomly subsampled (deterministic seed) to at most this many points before
+  /// the iterations [points]; 0 = all. The target is always used whole.
+  int max_source_points = 20000;
   // --- matcher
   int normal_neighbors = 10;  ///< neighbours used to estimate target normals (>= 3)
   // --- outlier rejection
@@ -43,11 +47,11 @@ struct IcpOptions {
   int max_iterations = 60;  ///< counter check
   /// Differential check: stop when the last step moved less than this fraction of the target
   /// cloud's RMS radius [-] ...
-  double min_relative_translation_change = 1e-5;
+  double min_relative_translation_change = 1e-4;
   /// ... and rotated less than this [rad] ...
-  double min_rotation_change = 1e-5;
+  double min_rotation_change = 1e-4;
   /// ... and changed the scale by less than this fraction [-].
-  double min_scale_change = 1e-5;
+  double min_scale_change = 1e-4;
   /// Fewer correspondences than this after rejection fails the registration.
   int min_correspondences = 10;
 };

@@ -43,7 +43,7 @@ void validate(const KeyframeDepthOptions& options);
 /**
  * @brief Per-pixel depth of one keyframe, and the 3D point behind a pixel.
  *
- * With a depth image (Keyframe::depth non-empty) the image is used as is (invalid values:
+ * With a depth image (MapKeyframe::depth non-empty) the image is used as is (invalid values:
  * 0, non-finite, or outside [min_depth, max_depth]). Without one, the map cloud is transformed
  * into the keyframe camera, p_cam = pose⁻¹(p_map) [camera units], and projected into a z-buffer
  * that keeps the nearest depth per pixel; points behind the camera, outside the image or outside
@@ -63,7 +63,7 @@ class KeyframeDepth {
    * @throw InputError on invalid options, an invalid camera, a pose scale that is not finite
    * and > 0, or a depth image that is not CV_32FC1 of the camera's width x height
    */
-  KeyframeDepth(const Keyframe& keyframe, const PinholeCamera& camera, const Cloud& map_cloud,
+  KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& camera, const Cloud& map_cloud,
                 const KeyframeDepthOptions& options = KeyframeDepthOptions());
 
   /**

@@ -30,8 +30,9 @@ struct PinholeCamera {
   double focal() const { return 0.5 * (fx + fy); }
 };
 
-/// A keyframe of one agent.
-struct Keyframe {
+/// A keyframe of one agent. (Not named `Keyframe`: the ROS message pcr_pro/Keyframe is the C++
+/// type pcr_pro::Keyframe, and both must compile in one translation unit of the ROS layer.)
+struct MapKeyframe {
   long id = 0;
   cv::Mat image;  ///< 8-bit grey (CV_8UC1), the camera's rectified image
   /// Depth along the optical axis (CV_32FC1) in camera units (before the pose scale), 0 or
@@ -46,7 +47,7 @@ struct AgentMap {
   std::string frame_id = "map";
   Cloud cloud;  ///< map point cloud in the map frame [map units]
   PinholeCamera camera;
-  std::vector<Keyframe> keyframes;
+  std::vector<MapKeyframe> keyframes;
 };
 
 }  // namespace pcr_pro

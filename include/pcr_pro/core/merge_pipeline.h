@@ -12,6 +12,7 @@
 
 #include "pcr_pro/core/config.h"
 #include "pcr_pro/core/feature_matching.h"
+#include "pcr_pro/core/input_limits.h"
 #include "pcr_pro/core/keyframe_depth.h"
 #include "pcr_pro/core/map_types.h"
 #include "pcr_pro/core/relative_pose.h"
@@ -47,6 +48,7 @@ struct MergeOptions {
   ScaleEstimationOptions scale_estimation;
   MergeGateOptions merge;
   RegistrationOptions registration;  ///< scale_detection, filters, icp, covariance
+  InputLimits limits;                ///< resource bounds on the inputs (block `limits`)
 };
 
 /// @throw InputError naming the first invalid option
@@ -54,7 +56,7 @@ void validate(const MergeOptions& options);
 
 /**
  * @brief Parses a merge configuration (blocks matching, relative_pose, keyframe_depth,
- * scale_estimation, merge, scale_detection, filters, icp, covariance; all optional).
+ * scale_estimation, merge, scale_detection, filters, icp, covariance, limits; all optional).
  * @throw InputError "<origin>: <key>: <what>" on bad YAML, unknown keys, wrong types or ranges
  */
 MergeOptions parseMergeConfig(const std::string& text, const std::string& origin);

@@ -1,0 +1,80 @@
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+#include <pcl/registration/gicp.h>
+#include <pcl/registration/icp.h>
+#include <pcl/registration/ndt.h>
+
+#include "bench_common.h"
+#include "peers.h"
+
+namespace pcr_pro {
+namespace bench {
+namespace {
+
+pcl::PointCloud<pcl::PointXYZ>::Ptr toPcl(const Cloud& c) {
+  pcl::PointCloud<pcl::PointXYZ>::Ptr out(new pcl::PointCloud<pcl::PointXYZ>);
+  out->resize(static_cast<std::size_t>(c.cols()));
+  for (Eigen::Index i = 0; i < c.cols(); ++i) {
+    (*out)[static_cast<std::size_t>(i)] =
+        pcl::PointXYZ(static_cast<float>(c(0, i)), static_cast<float>(c(1, i)), static_cast<float>(c(2, i)));
+  }
+  return out;
+}
+
+template <class Reg>
+PeerResult runReg(Reg& reg, const Cloud& source, const Cloud& target) {
+  PeerResult r;
+  const auto src = toPcl(source), tgt = toPcl(target);
+  const double t0 = nowMs();
+  reg.setInputSource(src);
+  reg.setInputTarget(tgt);
+  pcl::PointCloud<pcl::PointXYZ> aligned;
+  reg.align(aligned);
+  r.ms = nowMs() - t0;
+  const Eigen::Matrix4d m = reg.getFinalTransformation().template cast<double>();
+  if (m.allFinite()) {
+    try {
+      r.transform = Sim3::fromMatrix(m);
+      r.ran = true;
+    } catch (const std::exception&) {
+      r.ran = false;
+    }
+  }
+  return r;
+}
+
+}  // namespace
+
+std::string pclVersion() { return PCL_VERSION_PRETTY; }
+
+std::vector<std::string> pclMethods() {
+  return {"PCL IterativeClosestPoint", "PCL GeneralizedIterativeClosestPoint", "PCL NormalDistributionsTransform"};
+}
+
+PeerResult runPcl(int index, const Cloud& source, const Cloud& target, const PeerParams& p) {
+  // Thresholds as a user would set them without knowing the answer: relative to the target size.
+  const double max_corr = 0.1 * p.target_size;
+  if (index == 0) {
+    pcl::IterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ> icp;
+    icp.setMaxCorrespondenceDistance(max_corr);
+    icp.setMaximumIterations(100);
+    icp.setTransformationEpsilon(1e-10);
+    return runReg(icp, source, target);
+  }
+  if (index == 1) {
+    pcl::GeneralizedIterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ> gicp;
+    gicp.setMaxCorrespondenceDistance(max_corr);
+    gicp.setMaximumIterations(100);
+    gicp.setTransformationEpsilon(1e-10);
+    return runReg(gicp, source, target);
+  }
+  pcl::NormalDistributionsTransform<pcl::PointXYZ, pcl::PointXYZ> ndt;
+  ndt.setResolution(static_cast<float>(p.target_size / 20.0));
+  ndt.setStepSize(0.05 * p.target_size);
+  ndt.setTransformationEpsilon(1e-6 * p.target_size);
+  ndt.setMaximumIterations(100);
+  return runReg(ndt, source, target);
+}
+
+}  // namespace bench
+}  // namespace pcr_pro

@@ -1,0 +1,70 @@
+/**
+ * @file node_options.h
+ * @brief Every parameter of the merge node, its default (in the struct, written once), loading
+ * from the parameter server and validation. The node refuses to start when loadNodeOptions()
+ * throws; the message names the parameter at fault.
+ */
+#pragma once
+
+#include <ros/node_handle.h>
+
+#include <string>
+#include <vector>
+
+#include "pcr_pro/core/merge_pipeline.h"
+#include "pcr_pro/ros/lsd_keyframe.h"
+
+namespace pcr_pro {
+namespace ros_bridge {
+
+/// Which messages the node takes per agent.
+enum class InputMode {
+  kPcrPro,   ///< `X/keyframes` (pcr_pro/Keyframe) + `X/cloud` (sensor_msgs/PointCloud2)
+  kLsdSlam,  ///< `X/lsd_slam/keyframes` + `X/lsd_slam/graph` as published by LSD-SLAM
+};
+
+/// @return "pcr_pro" or "lsd_slam"
+const char* inputModeName(InputMode mode);
+
+/// One agent: topics live under its name (relative, so they remap).
+struct AgentOptions {
+  std::string name;      ///< e.g. "agent_a"; topics X/keyframes, X/cloud, X/lsd_slam/...
+  std::string frame_id;  ///< its map frame, default "<name>/map", no leading slash
+};
+
+/// Parameters of the merge node (private namespace `~`).
+struct NodeOptions {
+  /// `~agents`: the agents; the first is the default merge target, the second the default source.
+  std::vector<AgentOptions> agents{{"agent_a", "agent_a/map"}, {"agent_b", "agent_b/map"}};
+  /// `~input`: "pcr_pro" or "lsd_slam".
+  InputMode input = InputMode::kPcrPro;
+  /// `~queue_size`: subscriber queue length per topic [messages], >= 1.
+  int queue_size = 10;
+  /// `~publish_tf`: broadcast target_map -> source_map (static tf) after each merge.
+  bool publish_tf = true;
+  /// `~merge_config`: merge configuration file (config/merge.yaml format); empty = defaults.
+  std::string merge_config;
+  /// `~icp_config`: registration configuration file (config/icp.yaml format) whose blocks
+  /// replace the geometric stages of merge_config; empty = keep merge_config's.
+  std::string icp_config;
+  /// `~lsd/...`: LSD viewer filters of LSD-SLAM keyframe points.
+  LsdFilterOptions lsd;
+  /// The pipeline configuration read from merge_config / icp_config.
+  MergeOptions merge;
+};
+
+/// @throw InputError "~key: what" for the first invalid option (agents: at least two, unique
+/// valid relative names; frame ids non-empty, unique, no leading slash; queue_size >= 1; lsd filters)
+void validate(const NodeOptions& options);
+
+/**
+ * @brief Reads every parameter from the node's private namespace, loads the configuration
+ * files and validates everything. Keys that are absent keep the struct defaults; keys of the
+ * wrong type, unknown keys (typos) and out-of-range values are errors.
+ * @param[in] pnh private node handle ("~")
+ * @throw InputError "~key: what is wrong" (or the configuration file's own error)
+ */
+NodeOptions loadNodeOptions(const ros::NodeHandle& pnh);
+
+}  // namespace ros_bridge
+}  // namespace pcr_pro

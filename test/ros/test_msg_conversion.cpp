@@ -1,0 +1,427 @@
+// Message conversions (round trips on real keyframes), LSD-SLAM decoding and filters, the agent
+// store and parameter validation. Plain gtest: no ROS master needed.
+#include <gtest/gtest.h>
+#include <ros/message_traits.h>
+
+#include <cmath>
+#include <cstring>
+
+#include "pcr_pro/core/bundle.h"
+#include "pcr_pro/ros/agent_store.h"
+#include "pcr_pro/ros/msg_conversion.h"
+#include "pcr_pro/ros/node_options.h"
+
+namespace pcr_pro {
+namespace ros_bridge {
+namespace {
+
+const std::string kDataDir = PCR_PRO_TEST_DATA_DIR;
+
+Sim3 someSim3() {
+  return Sim3(0.4, Eigen::Quaterniond(Eigen::AngleAxisd(2.0, Eigen::Vector3d(-0.5, 0.8, 0.6).normalized())),
+              Eigen::Vector3d(2.5, -1.2, 3.0));
+}
+
+void expectSim3Near(const Sim3& a, const Sim3& b, double tol) {
+  EXPECT_NEAR(a.scale(), b.scale(), tol * b.scale());
+  EXPECT_LT(rotationDistance(a.rotation(), b.rotation()), tol);
+  EXPECT_LT((a.translation() - b.translation()).norm(), tol * (1.0 + b.translation().norm()));
+}
+
+AgentMap realAgent() { return loadBundle(kDataDir + "/bundles/depth/agent_b"); }
+
+// --- LSD-SLAM message types -------------------------------------------------------------------
+
+TEST(LsdSlamMessages, TypeNamesAndMd5SumsAreLsdSlams) {
+  // The MD5 sums of an unmodified LSD-SLAM (lsd_slam_viewer package).
+  EXPECT_STREQ(ros::message_traits::DataType<lsd_slam_viewer::keyframeMsg>::value(), "lsd_slam_viewer/keyframeMsg");
+  EXPECT_STREQ(ros::message_traits::MD5Sum<lsd_slam_viewer::keyframeMsg>::value(), "42d4108dbb7d0e5d166eb68dd4054826");
+  EXPECT_STREQ(ros::message_traits::DataType<lsd_slam_viewer::keyframeGraphMsg>::value(),
+               "lsd_slam_viewer/keyframeGraphMsg");
+  EXPECT_STREQ(ros::message_traits::MD5Sum<lsd_slam_viewer::keyframeGraphMsg>::value(),
+               "d23a8a86773b54db7399debf884d0c9e");
+}
+
+TEST(LsdSlamMessages, Sim3LayoutIsSophus) {
+  const Sim3 s = someSim3();
+  const std::array<float, 7> v = sim3ToLsd(s);
+  const Eigen::Quaterniond q = s.quaternion().normalized();
+  EXPECT_NEAR(v[0], 0.4 * q.x(), 1e-6);
+  EXPECT_NEAR(v[3], 0.4 * q.w(), 1e-6);
+  EXPECT_NEAR(v[4], 2.5, 1e-6);
+  EXPECT_NEAR(v[6], 3.0, 1e-6);
+  EXPECT_NEAR(std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3]), 0.4, 1e-6);  // scale = |q|
+  expectSim3Near(sim3FromLsd(v.data()), s, 1e-6);
+  const float zero[7] = {0, 0, 0, 0, 1, 2, 3};
+  EXPECT_THROW(sim3FromLsd(zero), InputError);
+  const float nan[7] = {0, 0, 0, NAN, 1, 2, 3};
+  EXPECT_THROW(sim3FromLsd(nan), InputError);
+}
+
+LsdKeyframe syntheticLsdKeyframe(int w = 40, int h = 30) {
+  LsdKeyframe kf;
+  kf.id = 7;
+  kf.time = 12.5;
+  kf.camera = {50.0, 52.0, 20.0, 15.0, w, h};
+  kf.cam_to_world = someSim3();
+  kf.idepth = cv::Mat(h, w, CV_32FC1, cv::Scalar(0.5f));  // depth 2
+  kf.idepth_var = cv::Mat(h, w, CV_32FC1, cv::Scalar(1e-5f));
+  kf.image.create(h, w, CV_8UC1);
+  for (int r = 0; r < h; ++r)
+    for (int c = 0; c < w; ++c) kf.image.at<std::uint8_t>(r, c) = static_cast<std::uint8_t>((r * 7 + c * 3) % 256);
+  return kf;
+}
+
+TEST(LsdSlamMessages, KeyframeRoundTrip) {
+  const LsdKeyframe kf = syntheticLsdKeyframe();
+  const lsd_slam_viewer::keyframeMsg msg = lsdKeyframeToMsg(kf);
+  EXPECT_EQ(msg.pointcloud.size(), 40u * 30u * 12u);
+  EXPECT_TRUE(msg.isKeyframe);
+  // Record layout: float idepth, float idepth_var, uchar color[4].
+  float idepth;
+  std::memcpy(&idepth, &msg.pointcloud[12 * (3 * 40 + 5)], 4);
+  EXPECT_FLOAT_EQ(idepth, 0.5f);
+  EXPECT_EQ(msg.pointcloud[12 * (3 * 40 + 5) + 8], kf.image.at<std::uint8_t>(3, 5));
+  const LsdKeyframe back = lsdKeyframeFromMsg(msg);
+  EXPECT_EQ(back.id, 7);
+  EXPECT_DOUBLE_EQ(back.time, 12.5);
+  EXPECT_DOUBLE_EQ(back.camera.fx, 50.0);
+  EXPECT_EQ(back.camera.width, 40);
+  EXPECT_EQ(cv::norm(back.image, kf.image, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(back.idepth, kf.idepth, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(back.idepth_var, kf.idepth_var, cv::NORM_INF), 0.0);
+  expectSim3Near(back.cam_to_world, kf.cam_to_world, 1e-6);
+}
+
+TEST(LsdSlamMessages, BadKeyframesAreRejected) {
+  const lsd_slam_viewer::keyframeMsg good = lsdKeyframeToMsg(syntheticLsdKeyframe());
+  auto bad = good;
+  bad.pointcloud.pop_back();
+  EXPECT_THROW(lsdKeyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.pointcloud.clear();
+  EXPECT_THROW(lsdKeyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.fx = 0.0f;
+  EXPECT_THROW(lsdKeyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.width = 0;
+  EXPECT_THROW(lsdKeyframeFromMsg(bad), InputError);
+  bad = good;
+  std::fill(bad.camToWorld.begin(), bad.camToWorld.begin() + 4, 0.0f);
+  EXPECT_THROW(lsdKeyframeFromMsg(bad), InputError);
+}
+
+TEST(LsdSlamMessages, GraphRoundTripAndCountChecks) {
+  LsdGraph g;
+  g.poses = {{3, someSim3()}, {5, Sim3()}};
+  g.constraints = {{3, 5, 0.25f}};
+  const lsd_slam_viewer::keyframeGraphMsg msg = lsdGraphToMsg(g);
+  EXPECT_EQ(msg.numFrames, 2u);
+  EXPECT_EQ(msg.frameData.size(), 64u);
+  EXPECT_EQ(msg.constraintsData.size(), 12u);
+  const LsdGraph back = lsdGraphFromMsg(msg);
+  ASSERT_EQ(back.poses.size(), 2u);
+  EXPECT_EQ(back.poses[0].first, 3);
+  expectSim3Near(back.poses[0].second, someSim3(), 1e-6);
+  ASSERT_EQ(back.constraints.size(), 1u);
+  EXPECT_EQ(back.constraints[0].to, 5);
+  EXPECT_FLOAT_EQ(back.constraints[0].error, 0.25f);
+  auto bad = msg;
+  bad.numFrames = 3;
+  EXPECT_THROW(lsdGraphFromMsg(bad), InputError);
+  bad = msg;
+  bad.numConstraints = 0;
+  EXPECT_THROW(lsdGraphFromMsg(bad), InputError);
+  bad = msg;
+  std::memset(&bad.frameData[4], 0, 16);  // zero quaternion of the first pose
+  EXPECT_THROW(lsdGraphFromMsg(bad), InputError);
+}
+
+// --- LSD viewer filters -----------------------------------------------------------------------
+
+TEST(LsdFilters, ViewerSemantics) {
+  LsdKeyframe kf = syntheticLsdKeyframe();
+  LsdFilterOptions o;  // viewer defaults: 1e-3, 1e-1, 7, 1
+  const LsdPoints all = extractPoints(kf, o);
+  EXPECT_EQ(all.camera_points.cols(), 38 * 28);  // the one-pixel border is skipped
+  // A kept point back-projects through K at depth 1 / idepth.
+  EXPECT_NEAR(all.depth.at<float>(15, 20), 2.0f, 1e-6);
+  EXPECT_EQ(all.depth.at<float>(0, 0), 0.0f);
+
+  // scaled threshold: var * depth^4 = 1e-5 * 16 = 1.6e-4
+  o.scaled_depth_var_th = 1e-4;
+  EXPECT_EQ(extractPoints(kf, o).camera_points.cols(), 0);
+  o = LsdFilterOptions();
+  // absolute threshold adds scale^2 = 0.16: 1.6e-4 * 0.16 = 2.56e-5
+  o.abs_depth_var_th = 2e-5;
+  EXPECT_EQ(extractPoints(kf, o).camera_points.cols(), 0);
+  o.abs_depth_var_th = 3e-5;
+  EXPECT_EQ(extractPoints(kf, o).camera_points.cols(), 38 * 28);
+
+  // near support: an isolated pixel has support 1 (itself) and goes with min_near_support > 1.
+  o = LsdFilterOptions();
+  kf.idepth.setTo(0.0f);
+  kf.idepth.at<float>(10, 10) = 0.5f;
+  EXPECT_EQ(extractPoints(kf, o).camera_points.cols(), 0);
+  o.min_near_support = 1;
+  EXPECT_EQ(extractPoints(kf, o).camera_points.cols(), 1);
+  // a neighbour with a very different inverse depth does not support it
+  o.min_near_support = 2;
+  kf.idepth.at<float>(10, 11) = 0.9f;
+  EXPECT_EQ(extractPoints(kf, o).camera_points.cols(), 0);
+  kf.idepth.at<float>(10, 11) = 0.501f;  // (0.001)^2 < 2 * 1e-5
+  EXPECT_EQ(extractPoints(kf, o).camera_points.cols(), 2);
+
+  // sparsify keeps about one in k, deterministically
+  kf = syntheticLsdKeyframe(200, 100);
+  o = LsdFilterOptions();
+  o.sparsify_factor = 4;
+  const Eigen::Index n = extractPoints(kf, o).camera_points.cols();
+  EXPECT_NEAR(static_cast<double>(n) / (198 * 98), 0.25, 0.03);
+  EXPECT_EQ(extractPoints(kf, o).camera_points.cols(), n);
+}
+
+TEST(LsdFilters, OptionsAreValidated) {
+  LsdFilterOptions o;
+  EXPECT_NO_THROW(validate(o));
+  o.min_near_support = 10;
+  EXPECT_THROW(validate(o), InputError);
+  o = LsdFilterOptions();
+  o.sparsify_factor = 0;
+  EXPECT_THROW(validate(o), InputError);
+  o = LsdFilterOptions();
+  o.scaled_depth_var_th = 0.0;
+  EXPECT_THROW(validate(o), InputError);
+}
+
+// --- pcr_pro messages -------------------------------------------------------------------------
+
+TEST(Conversions, KeyframeRoundTripOnRealFrames) {
+  const AgentMap agent = realAgent();
+  for (bool mm : {false, true}) {
+    const MapKeyframe& kf = agent.keyframes.front();
+    const pcr_pro::Keyframe msg = keyframeToMsg(kf, agent.camera, agent.frame_id, ros::Time(5.0), mm);
+    EXPECT_EQ(msg.header.frame_id, "agent_b/map");
+    EXPECT_EQ(msg.depth.encoding, mm ? "16UC1" : "32FC1");
+    const DecodedKeyframe back = keyframeFromMsg(msg);
+    EXPECT_EQ(back.keyframe.id, kf.id);
+    EXPECT_EQ(back.frame_id, "agent_b/map");
+    EXPECT_EQ(cv::norm(back.keyframe.image, kf.image, cv::NORM_INF), 0.0);
+    ASSERT_FALSE(back.keyframe.depth.empty());
+    EXPECT_LE(cv::norm(back.keyframe.depth, kf.depth, cv::NORM_INF), mm ? 0.0005 : 0.0);
+    EXPECT_DOUBLE_EQ(back.camera.fx, agent.camera.fx);
+    EXPECT_DOUBLE_EQ(back.camera.cy, agent.camera.cy);
+    EXPECT_EQ(back.camera.width, agent.camera.width);
+    expectSim3Near(back.keyframe.pose, kf.pose, 1e-12);
+  }
+}
+
+TEST(Conversions, ColourImagesBecomeGrey) {
+  cv::Mat grey(4, 6, CV_8UC1, cv::Scalar(100));
+  sensor_msgs::Image msg = greyImageToMsg(grey);
+  msg.encoding = "rgb8";
+  msg.step = 18;
+  msg.data.assign(18 * 4, 100);
+  const cv::Mat back = greyImageFromMsg(msg);
+  EXPECT_EQ(back.type(), CV_8UC1);
+  EXPECT_EQ(back.at<std::uint8_t>(2, 3), 100);
+}
+
+TEST(Conversions, BadKeyframesAreRejected) {
+  const AgentMap agent = realAgent();
+  const pcr_pro::Keyframe good = keyframeToMsg(agent.keyframes.front(), agent.camera, "", ros::Time(), false);
+  auto bad = good;
+  bad.camera_info.K[0] = 0.0;  // zero intrinsics
+  EXPECT_THROW(keyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.camera_info.width = 320;  // image size vs camera_info
+  EXPECT_THROW(keyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.camera_info.D[0] = 0.1;  // not rectified
+  EXPECT_THROW(keyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.image.encoding = "yuv422";
+  EXPECT_THROW(keyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.image.data.resize(100);
+  EXPECT_THROW(keyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.scale = 0.0;
+  EXPECT_THROW(keyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.pose.orientation.w = bad.pose.orientation.x = bad.pose.orientation.y = bad.pose.orientation.z = 0.0;
+  EXPECT_THROW(keyframeFromMsg(bad), InputError);
+  bad = good;
+  bad.depth.width = 320;
+  bad.depth.step = 1280;
+  bad.depth.data.resize(1280 * 480);
+  EXPECT_THROW(keyframeFromMsg(bad), InputError);  // depth size != image size
+  try {
+    bad = good;
+    bad.camera_info.K[4] = -1.0;
+    keyframeFromMsg(bad);
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("camera_info.K"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Conversions, CloudRoundTripAndValidation) {
+  const AgentMap agent = realAgent();
+  const sensor_msgs::PointCloud2 msg = cloudToMsg(agent.cloud, "agent_b/map", ros::Time(1.0));
+  EXPECT_EQ(msg.width * msg.height, static_cast<std::uint32_t>(agent.cloud.cols()));
+  const Cloud back = cloudFromMsg(msg);
+  ASSERT_EQ(back.cols(), agent.cloud.cols());
+  EXPECT_LT((back - agent.cloud).cwiseAbs().maxCoeff(), 1e-5 * (1.0 + agent.cloud.cwiseAbs().maxCoeff()));
+
+  auto bad = msg;
+  bad.data.pop_back();  // width * height * point_step != data.size()
+  EXPECT_THROW(cloudFromMsg(bad), InputError);
+  bad = msg;
+  bad.row_step += 1;
+  EXPECT_THROW(cloudFromMsg(bad), InputError);
+  bad = msg;
+  bad.fields[2].name = "intensity";
+  EXPECT_THROW(cloudFromMsg(bad), InputError);
+  bad = msg;
+  bad.fields[1].datatype = sensor_msgs::PointField::UINT16;
+  EXPECT_THROW(cloudFromMsg(bad), InputError);
+  bad = msg;
+  bad.fields[2].offset = 10;  // 10 + 4 > point_step 12
+  EXPECT_THROW(cloudFromMsg(bad), InputError);
+  // Non-finite points are dropped.
+  bad = msg;
+  const float nan = NAN;
+  std::memcpy(&bad.data[0], &nan, 4);
+  EXPECT_EQ(cloudFromMsg(bad).cols(), agent.cloud.cols() - 1);
+}
+
+TEST(Conversions, EdgeRoundTrip) {
+  RegistrationReport r;
+  r.status = Status::kOk;
+  r.transform = someSim3();
+  Matrix6d cov = Matrix6d::Identity() * 1e-4;
+  cov(0, 3) = cov(3, 0) = 2e-5;
+  r.covariance = cov;
+  r.information = cov.inverse();
+  r.scale_stddev = 0.002;
+  r.fitness_rmse = 0.013;
+  r.correspondences = 5120;
+  r.source_keyframe = 3;
+  r.target_keyframe = 2;
+  const EdgeNames names{"agent_b", "agent_a", "agent_b/map", "agent_a/map"};
+  const pcr_pro::MapEdge msg = edgeToMsg(r, names, ros::Time(3.0));
+  EXPECT_EQ(msg.header.frame_id, "agent_a/map");
+  EXPECT_EQ(msg.pose.covariance[3], 2e-5);  // row-major (x, y, z, rx, ry, rz)
+  EXPECT_EQ(msg.pose.covariance[18], 2e-5);
+  EXPECT_DOUBLE_EQ(msg.scale, 0.4);
+  const EdgeData back = edgeFromMsg(msg);
+  expectSim3Near(back.target_source, *r.transform, 1e-12);
+  EXPECT_EQ(back.covariance, cov);
+  EXPECT_LT((back.information - cov.inverse()).norm(), 1e-6);
+  EXPECT_EQ(back.scale_stddev, 0.002);
+  EXPECT_EQ(back.fitness_rmse, 0.013);
+  EXPECT_EQ(back.correspondences, 5120);
+  EXPECT_EQ(back.source_keyframe, 3);
+  EXPECT_EQ(back.target_keyframe, 2);
+  EXPECT_EQ(back.names.source_frame, "agent_b/map");
+  EXPECT_EQ(back.names.target_agent, "agent_a");
+  RegistrationReport failed;
+  failed.status = Status::kNotEnoughMatches;
+  EXPECT_THROW(edgeToMsg(failed, names, ros::Time()), InputError);
+
+  const geometry_msgs::TransformStamped t = rigidTransformToMsg(*r.transform, "agent_a/map", "agent_b/map", ros::Time());
+  EXPECT_EQ(t.header.frame_id, "agent_a/map");
+  EXPECT_EQ(t.child_frame_id, "agent_b/map");
+  EXPECT_DOUBLE_EQ(t.transform.translation.y, -1.2);
+  const Eigen::Quaterniond q(t.transform.rotation.w, t.transform.rotation.x, t.transform.rotation.y,
+                             t.transform.rotation.z);
+  EXPECT_LT(rotationDistance(q.toRotationMatrix(), r.transform->rotation()), 1e-9);
+}
+
+// --- agent store ------------------------------------------------------------------------------
+
+TEST(AgentStore, ResentKeyframeIdReplaces) {
+  const AgentMap agent = realAgent();
+  AgentStore store("agent_b/map");
+  EXPECT_FALSE(store.setKeyframe(agent.keyframes[0], agent.camera));
+  EXPECT_FALSE(store.setKeyframe(agent.keyframes[1], agent.camera));
+  MapKeyframe moved = agent.keyframes[0];
+  moved.pose = Sim3(1.0, Eigen::Matrix3d::Identity(), Eigen::Vector3d(1, 2, 3)) * moved.pose;
+  EXPECT_TRUE(store.setKeyframe(moved, agent.camera));
+  EXPECT_EQ(store.keyframeCount(), 2u);
+  Sim3 pose;
+  ASSERT_TRUE(store.keyframePose(moved.id, &pose));
+  EXPECT_LT((pose.translation() - moved.pose.translation()).norm(), 1e-12);
+  PinholeCamera other = agent.camera;
+  other.fx += 1.0;
+  EXPECT_THROW(store.setKeyframe(agent.keyframes[0], other), InputError);
+  store.setCloud(agent.cloud);
+  const AgentMap map = store.toAgentMap(LsdFilterOptions());
+  EXPECT_EQ(map.frame_id, "agent_b/map");
+  EXPECT_EQ(map.keyframes.size(), 2u);
+  EXPECT_EQ(map.cloud.cols(), agent.cloud.cols());
+}
+
+TEST(AgentStore, GraphUpdatesMoveLsdKeyframesAndTheirPoints) {
+  AgentStore store("agent_a/map");
+  LsdKeyframe kf = syntheticLsdKeyframe();
+  store.setLsdKeyframe(kf);
+  const AgentMap before = store.toAgentMap(LsdFilterOptions());
+  ASSERT_EQ(before.keyframes.size(), 1u);
+  ASSERT_GT(before.cloud.cols(), 0);
+  const Sim3 g(2.0, Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ())), Eigen::Vector3d(1, 0, 0));
+  EXPECT_EQ(store.updateLsdPoses({{kf.id, g * kf.cam_to_world}, {999, Sim3()}}), 1);
+  const AgentMap after = store.toAgentMap(LsdFilterOptions());
+  ASSERT_EQ(after.cloud.cols(), before.cloud.cols());
+  EXPECT_LT((after.cloud - g.apply(before.cloud)).cwiseAbs().maxCoeff(), 1e-9);
+  expectSim3Near(after.keyframes[0].pose, g * kf.cam_to_world, 1e-9);
+  // the keyframe depth is the depth of the kept points
+  EXPECT_NEAR(after.keyframes[0].depth.at<float>(15, 20), 2.0f, 1e-6);
+}
+
+// --- parameters -------------------------------------------------------------------------------
+
+TEST(NodeOptions, DefaultsAreValidAndBadValuesNameTheKey) {
+  NodeOptions o;
+  EXPECT_NO_THROW(validate(o));
+  EXPECT_EQ(o.agents.size(), 2u);
+  EXPECT_EQ(o.agents[1].frame_id, "agent_b/map");
+  const auto expectKey = [](const NodeOptions& bad, const std::string& key) {
+    try {
+      validate(bad);
+      ADD_FAILURE() << "no error for " << key;
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
+    }
+  };
+  NodeOptions bad = o;
+  bad.agents.pop_back();
+  expectKey(bad, "~agents");
+  bad = o;
+  bad.agents[1].name = "/agent_b";
+  expectKey(bad, "~agents");
+  bad = o;
+  bad.agents[1].name = "agent_a";
+  expectKey(bad, "~agents");
+  bad = o;
+  bad.agents[0].frame_id = "/map";
+  expectKey(bad, "~agent_a/frame_id");
+  bad = o;
+  bad.agents[1].frame_id = "agent_a/map";
+  expectKey(bad, "~agent_b/frame_id");
+  bad = o;
+  bad.queue_size = 0;
+  expectKey(bad, "~queue_size");
+  bad = o;
+  bad.lsd.min_near_support = 12;
+  expectKey(bad, "~lsd.min_near_support");
+  bad = o;
+  bad.merge.matching.ratio_test = 2.0;
+  expectKey(bad, "~");
+}
+
+}  // namespace
+}  // namespace ros_bridge
+}  // namespace pcr_pro
