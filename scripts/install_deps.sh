@@ -42,7 +42,7 @@ case "$profile" in
   # make test-sanitize: g++'s ASan/UBSan runtimes come with g++; llvm-14 for symbolised reports
   sanitize) packages+=(llvm-14) ;;
   # demo.launch rviz:=true and scripts/rviz_screenshot.sh
-  rviz) packages+=(rviz xvfb) ;;
+  rviz) packages+=(rviz xvfb imagemagick) ;;
   *) echo "install_deps: unknown profile '$profile' (build|bench|bundles|fuzz|sanitize|rviz)" >&2; exit 2 ;;
 esac
 
