@@ -18,10 +18,21 @@
 
 namespace {
 
+std::filesystem::path scratchPath() {
+  return std::filesystem::temp_directory_path() / ("pcr_pro_fuzz_bundle_" + std::to_string(::getpid()));
+}
+
+// Removes the scratch bundle when the fuzzer exits.
+struct ScratchCleanup {
+  ~ScratchCleanup() {
+    std::error_code ec;
+    std::filesystem::remove_all(scratchPath(), ec);
+  }
+} scratch_cleanup;
+
 std::filesystem::path bundleDir() {
   static const std::filesystem::path dir = [] {
-    const std::filesystem::path d =
-        std::filesystem::temp_directory_path() / ("pcr_pro_fuzz_bundle_" + std::to_string(::getpid()));
+    const std::filesystem::path d = scratchPath();
     std::filesystem::create_directories(d / "keyframes");
     pcr_pro::Cloud cloud(3, 4);
     cloud << 0, 1, 0, 0, 0, 0, 1, 0, 1, 1, 1, 2;
