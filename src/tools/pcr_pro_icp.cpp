@@ -1,6 +1,5 @@
 // pcr_pro_icp: register two point clouds (see CONTRACTS.md / README).
 #include <iostream>
-#include <new>
 #include <sstream>
 
 #include "pcr_pro/core/cloud_io.h"
@@ -72,16 +71,5 @@ int run(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    return run(argc, argv);
-  } catch (const pcr_pro::tools::UsageError& e) {
-    pcr_pro::tools::printError("pcr_pro_icp", e.what());
-  } catch (const pcr_pro::InputError& e) {
-    pcr_pro::tools::printError("pcr_pro_icp", e.what());
-  } catch (const std::bad_alloc&) {
-    pcr_pro::tools::printError("pcr_pro_icp", "out of memory (input too large?)");
-  } catch (const std::exception& e) {
-    pcr_pro::tools::printError("pcr_pro_icp", std::string("error: ") + e.what());
-  }
-  return 2;
+  return pcr_pro::tools::runTool("pcr_pro_icp", argc, argv, run);
 }

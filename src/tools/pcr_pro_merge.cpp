@@ -1,7 +1,6 @@
 // pcr_pro_merge: offline merge of two map bundles (see CONTRACTS.md / README).
 #include <cstdlib>
 #include <iostream>
-#include <new>
 
 #include "pcr_pro/core/bundle.h"
 #include "pcr_pro/core/merge_pipeline.h"
@@ -75,16 +74,5 @@ int run(int argc, char** argv) {
 int main(int argc, char** argv) {
   // OpenCV's FLANN index draws its random trees from std::rand(): seed it for repeatable runs.
   std::srand(1);
-  try {
-    return run(argc, argv);
-  } catch (const pcr_pro::tools::UsageError& e) {
-    pcr_pro::tools::printError("pcr_pro_merge", e.what());
-  } catch (const pcr_pro::InputError& e) {
-    pcr_pro::tools::printError("pcr_pro_merge", e.what());
-  } catch (const std::bad_alloc&) {
-    pcr_pro::tools::printError("pcr_pro_merge", "out of memory (input too large?)");
-  } catch (const std::exception& e) {
-    pcr_pro::tools::printError("pcr_pro_merge", std::string("error: ") + e.what());
-  }
-  return 2;
+  return pcr_pro::tools::runTool("pcr_pro_merge", argc, argv, run);
 }

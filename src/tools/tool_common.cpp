@@ -1,6 +1,7 @@
 #include "tool_common.h"
 
 #include <filesystem>
+#include <new>
 #include <fstream>
 #include <iostream>
 
@@ -45,6 +46,21 @@ void writeOutputs(const std::string& dir, const std::string& yaml, const Cloud& 
   out << yaml;
   if (!out) throw InputError(result_path + ": cannot write file");
   writePcd((std::filesystem::path(dir) / "fused.pcd").string(), fused);
+}
+
+int runTool(const char* tool, int argc, char** argv, int (*body)(int, char**)) {
+  try {
+    return body(argc, argv);
+  } catch (const UsageError& e) {
+    printError(tool, e.what());
+  } catch (const InputError& e) {
+    printError(tool, e.what());
+  } catch (const std::bad_alloc&) {
+    printError(tool, "out of memory (input too large?)");
+  } catch (const std::exception& e) {
+    printError(tool, std::string("error: ") + e.what());
+  }
+  return 2;
 }
 
 int exitStatus(const RegistrationReport& report) { return report.status == Status::kOk ? 0 : 1; }

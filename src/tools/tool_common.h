@@ -42,5 +42,9 @@ int exitStatus(const RegistrationReport& report);
 /// or file contents quoted in the message) become spaces, and the length is bounded.
 void printError(const char* tool, const std::string& message);
 
+/// Runs a tool's body and turns every exception into the contract's exit status 2 with a
+/// one-line error (usage, input, out of memory, anything else); @return the body's status.
+int runTool(const char* tool, int argc, char** argv, int (*body)(int, char**));
+
 }  // namespace tools
 }  // namespace pcr_pro
