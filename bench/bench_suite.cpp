@@ -666,10 +666,17 @@ void consistency(Output& out, const std::vector<std::pair<int, int>>& sizes_tria
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::fprintf(stderr, "usage: pcr_pro_bench_suite OUTPUT_DIR [--quick]\n");
+    std::fprintf(stderr, "usage: pcr_pro_bench_suite OUTPUT_DIR [--quick] [--only timing|sweep|car|consistency]\n");
     return 2;
   }
-  const bool quick = argc > 2 && std::string(argv[2]) == "--quick";
+  bool quick = false;
+  std::string only;
+  for (int i = 2; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--quick") quick = true;
+    else if (a == "--only" && i + 1 < argc) only = argv[++i];
+  }
+  const auto want = [&only](const char* section) { return only.empty() || only == section; };
   try {
     if (std::string(argv[1]) == "--memory" && argc == 4) {
       return memoryProbe(std::stoi(argv[2]), std::string(argv[3]) == "merge");
@@ -696,17 +703,17 @@ int main(int argc, char** argv) {
       sc.variants = {"depth", "nodepth"};
     }
     double t0 = nowMs();
-    timing(out, self, quick ? std::vector<int>{10000, 70000} : std::vector<int>{10000, 20000, 35000, 70000, 140000},
+    if (want("timing")) timing(out, self, quick ? std::vector<int>{10000, 70000} : std::vector<int>{10000, 20000, 35000, 70000, 140000},
            quick ? 2 : 5, quick ? std::vector<int>{10000} : std::vector<int>{10000, 35000, 70000}, headline);
     std::fprintf(stderr, "timing: %.0f s\n", (nowMs() - t0) / 1000);
     t0 = nowMs();
-    sweep(out, sc, headline);
+    if (want("sweep")) sweep(out, sc, headline);
     std::fprintf(stderr, "sweep: %.0f s\n", (nowMs() - t0) / 1000);
     t0 = nowMs();
-    carScans(out, quick ? std::vector<double>{2.5} : std::vector<double>{1.0, 0.4, 2.5});
+    if (want("car")) carScans(out, quick ? std::vector<double>{2.5} : std::vector<double>{1.0, 0.4, 2.5});
     std::fprintf(stderr, "car: %.0f s\n", (nowMs() - t0) / 1000);
     t0 = nowMs();
-    consistency(out, quick ? std::vector<std::pair<int, int>>{{2000, 6}}
+    if (want("consistency")) consistency(out, quick ? std::vector<std::pair<int, int>>{{2000, 6}}
                            : std::vector<std::pair<int, int>>{{2000, 40}, {5000, 25}, {10000, 20}},
                 headline);
     std::fprintf(stderr, "consistency: %.0f s\n", (nowMs() - t0) / 1000);

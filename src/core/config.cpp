@@ -89,6 +89,7 @@ IcpOptions loadIcp(const YAML::Node& node, const std::string& origin) {
   {
     Block b(icp.child("sampling"), "icp.sampling", origin);
     b.get("max_source_points", &o.max_source_points);
+    b.get("coarse_source_points", &o.coarse_source_points);
     b.finish();
   }
   {
@@ -112,6 +113,7 @@ IcpOptions loadIcp(const YAML::Node& node, const std::string& origin) {
     b.get("max_scale_step", &o.max_scale_step);
     b.get("min_scale_ratio", &o.min_scale_ratio);
     b.get("max_scale_ratio", &o.max_scale_ratio);
+    b.get("extrapolation", &o.extrapolation);
     b.finish();
   }
   {

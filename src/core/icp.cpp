@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <string>
 #include <vector>
 
 #include "pcr_pro/core/filters.h"
@@ -150,6 +151,7 @@ bool parseErrorMetric(const std::string& name, ErrorMetric* metric) {
 
 void validate(const IcpOptions& o) {
   if (o.max_source_points < 0) throw InputError("icp.sampling.max_source_points must be >= 0");
+  if (o.coarse_source_points < 0) throw InputError("icp.sampling.coarse_source_points must be >= 0");
   if (o.normal_neighbors < 3) throw InputError("icp.matcher.normal_neighbors must be >= 3");
   if (!(o.max_correspondence_distance >= 0.0)) {
     throw InputError("icp.outlier_rejection.max_correspondence_distance must be >= 0");
@@ -192,35 +194,41 @@ Sim3 umeyama(const Cloud& src, const Cloud& dst, bool with_scale) {
   return Sim3(s, r, mu_d - s * (r * mu_s));
 }
 
-IcpResult alignIcp(const Cloud& source_in, const Cloud& target, const Sim3& initial, const IcpOptions& o) {
-  validate(o);
-  if (source_in.cols() == 0) throw InputError("icp: source cloud is empty");
-  MaxPointsOptions sampling;
-  sampling.max_points = o.max_source_points;
-  const Cloud source = maxPointsFilter(source_in, sampling);
-  if (target.cols() == 0) throw InputError("icp: target cloud is empty");
-  IcpResult result;
-  KdTree tree(target);
-  LazyNormals normals(tree, o.normal_neighbors);
-  const Eigen::Vector3d target_centroid = target.rowwise().mean();
-  const double target_radius = std::sqrt((target.colwise() - target_centroid).colwise().squaredNorm().mean());
-  const double min_scale = initial.scale() * o.min_scale_ratio;
-  const double max_scale = initial.scale() * o.max_scale_ratio;
-  const double max_log_step = std::log1p(o.max_scale_step);
+namespace {
 
-  Sim3 current = initial;
-  bool converged = false;
-  int iter = 0;
-  for (; iter < o.max_iterations; ++iter) {
-    const Cloud moved = current.apply(source);
+// Where one level of iterations ended.
+struct LevelOutcome {
+  bool failed = false;     // too few correspondences or a numerical failure; message set
+  bool converged = false;  // the differential check passed
+  int iterations = 0;
+  int extrapolations = 0;
+  std::string message;
+};
+
+// Extrapolation (see iterateLevel): only when the last two steps point the same way within
+// about 18 degrees, and never more than this many times the last step.
+constexpr double kExtrapolationMinCosine = 0.95;
+constexpr double kExtrapolationMaxFactor = 8.0;
+
+// Iterates match / reject / minimise on `source` from `*current` until the differential check
+// passes at `tolerance` times the configured thresholds, or the iteration limit.
+LevelOutcome iterateLevel(const Cloud& source, const Cloud& target, const KdTree& tree, LazyNormals& normals,
+                          const IcpOptions& o, double tolerance, double target_radius, double min_scale,
+                          double max_scale, int iteration_offset, Sim3* current) {
+  LevelOutcome out;
+  const double max_log_step = std::log1p(o.max_scale_step);
+  const Eigen::Vector3d source_centroid = source.rowwise().mean();
+  Eigen::Matrix<double, 7, 1> previous_twist = Eigen::Matrix<double, 7, 1>::Zero();
+  bool has_previous = false, extrapolated = false;
+  for (; out.iterations < o.max_iterations; ++out.iterations) {
+    const int iter = iteration_offset + out.iterations;
+    const Cloud moved = current->apply(source);
     const std::vector<Match> m = matchAndReject(moved, tree, o);
     if (static_cast<int>(m.size()) < o.min_correspondences) {
-      result.status = Status::kIcpNotConverged;
-      result.message = "icp: only " + std::to_string(m.size()) + " correspondences at iteration " +
-                       std::to_string(iter) + " (need " + std::to_string(o.min_correspondences) + ")";
-      result.transform = current;
-      result.iterations = iter;
-      return result;
+      out.failed = true;
+      out.message = "icp: only " + std::to_string(m.size()) + " correspondences at iteration " + std::to_string(iter) +
+                    " (need " + std::to_string(o.min_correspondences) + ")";
+      return out;
     }
     Sim3 step;
     if (o.error_metric == ErrorMetric::kPointToPoint) {
@@ -240,34 +248,112 @@ IcpResult alignIcp(const Cloud& source_in, const Cloud& target, const Sim3& init
       normals.ensure(m);
       step = pointToPlaneStep(moved, target, normals.normals(), m, o.estimate_scale, max_log_step);
     }
-    Sim3 next = step * current;
+    Sim3 next = step * *current;
     if (!next.matrix().allFinite()) {
-      result.status = Status::kIcpNotConverged;
-      result.message = "icp: numerical failure at iteration " + std::to_string(iter);
-      result.transform = current;
-      result.iterations = iter;
-      return result;
+      out.failed = true;
+      out.message = "icp: numerical failure at iteration " + std::to_string(iter);
+      return out;
     }
     if (next.scale() < min_scale || next.scale() > max_scale) {
       const double s = std::min(max_scale, std::max(min_scale, next.scale()));
       // Keep the source centroid where the step put it while clamping the scale.
-      const Eigen::Vector3d mc = source.rowwise().mean();
-      const Eigen::Vector3d at = next.apply(mc);
-      next = Sim3(s, next.rotation(), at - s * (next.rotation() * mc));
+      const Eigen::Vector3d at = next.apply(source_centroid);
+      next = Sim3(s, next.rotation(), at - s * (next.rotation() * source_centroid));
     }
     // Differential check on how far the step moved the source centroid, rotated and scaled.
     const Eigen::Vector3d mc = moved.rowwise().mean();
-    const double dt = (step.apply(mc) - mc).norm();
+    const Eigen::Vector3d moved_by = step.apply(mc) - mc;
+    const double dt = moved_by.norm();
     const double dr = step.rotationAngle();
-    const double dsc = std::abs(next.scale() / current.scale() - 1.0);
-    current = next;
-    if (dt <= o.min_relative_translation_change * target_radius && dr <= o.min_rotation_change &&
-        dsc <= o.min_scale_change) {
-      converged = true;
-      ++iter;
-      break;
+    const double dsc = std::abs(next.scale() / current->scale() - 1.0);
+    // The step as a 7-vector of displacements about the moved centroid (translation, rotation
+    // and log scale times the target radius), for the extrapolation below.
+    Eigen::Matrix<double, 7, 1> twist;
+    const Eigen::AngleAxisd aa(step.rotation());
+    twist << moved_by, aa.angle() * aa.axis() * target_radius, std::log(step.scale()) * target_radius;
+    *current = next;
+    if (dt <= tolerance * o.min_relative_translation_change * target_radius &&
+        dr <= tolerance * o.min_rotation_change && dsc <= tolerance * o.min_scale_change && !extrapolated) {
+      out.converged = true;
+      ++out.iterations;
+      return out;
     }
+    extrapolated = false;
+    // Extrapolation: ICP creeps along shallow valleys with steps that shrink by a nearly
+    // constant ratio r in a nearly constant direction; then the rest of that geometric series,
+    // r / (1 - r) times the last step, is taken at once (capped). A wrong guess costs one
+    // iteration: the next step points back, and no extrapolation follows a reversal.
+    if (o.extrapolation && has_previous) {
+      const double n0 = previous_twist.norm(), n1 = twist.norm();
+      const double cosine = n0 > 0.0 && n1 > 0.0 ? previous_twist.dot(twist) / (n0 * n1) : 0.0;
+      const double r = n0 > 0.0 ? n1 / n0 : 1.0;
+      if (cosine > kExtrapolationMinCosine && r < 1.0) {
+        const double f = std::min(kExtrapolationMaxFactor, r / (1.0 - r));
+        const double s = std::exp(f * std::log(step.scale()));
+        const Eigen::Matrix3d rot = expSO3(f * aa.angle() * aa.axis());
+        const Eigen::Vector3d c = step.apply(mc);  // the moved centroid after this step
+        Sim3 extra(s, rot, c - s * (rot * c) + f * moved_by);
+        Sim3 jumped = extra * *current;
+        if (jumped.matrix().allFinite()) {
+          if (jumped.scale() < min_scale || jumped.scale() > max_scale) {
+            const double sc = std::min(max_scale, std::max(min_scale, jumped.scale()));
+            const Eigen::Vector3d at = jumped.apply(source_centroid);
+            jumped = Sim3(sc, jumped.rotation(), at - sc * (jumped.rotation() * source_centroid));
+          }
+          *current = jumped;
+          extrapolated = true;
+          ++out.extrapolations;
+        }
+      }
+    }
+    previous_twist = twist;
+    has_previous = !extrapolated;  // the step after a jump starts a new series
   }
+  return out;
+}
+
+}  // namespace
+
+IcpResult alignIcp(const Cloud& source_in, const Cloud& target, const Sim3& initial, const IcpOptions& o) {
+  validate(o);
+  if (source_in.cols() == 0) throw InputError("icp: source cloud is empty");
+  MaxPointsOptions sampling;
+  sampling.max_points = o.max_source_points;
+  const Cloud source = maxPointsFilter(source_in, sampling);
+  if (target.cols() == 0) throw InputError("icp: target cloud is empty");
+  IcpResult result;
+  KdTree tree(target);
+  LazyNormals normals(tree, o.normal_neighbors);
+  const Eigen::Vector3d target_centroid = target.rowwise().mean();
+  const double target_radius = std::sqrt((target.colwise() - target_centroid).colwise().squaredNorm().mean());
+  const double min_scale = initial.scale() * o.min_scale_ratio;
+  const double max_scale = initial.scale() * o.max_scale_ratio;
+
+  Sim3 current = initial;
+  int iter = 0;
+  // Coarse level: most of the travel from the initial guess on a small sample, to a looser
+  // differential check; the full sample then only has to settle the last digits.
+  if (o.coarse_source_points > 0 && source.cols() > 2 * static_cast<Eigen::Index>(o.coarse_source_points)) {
+    MaxPointsOptions coarse_sampling;
+    coarse_sampling.max_points = o.coarse_source_points;
+    const Cloud coarse = maxPointsFilter(source, coarse_sampling);
+    const LevelOutcome c = iterateLevel(coarse, target, tree, normals, o, kCoarseToleranceFactor, target_radius,
+                                        min_scale, max_scale, 0, &current);
+    iter += c.iterations;
+    // A failed coarse level (e.g. too few correspondences on the small sample) leaves the
+    // decision to the full sample, from the last good pose.
+  }
+  const LevelOutcome fine =
+      iterateLevel(source, target, tree, normals, o, 1.0, target_radius, min_scale, max_scale, iter, &current);
+  iter += fine.iterations;
+  if (fine.failed) {
+    result.status = Status::kIcpNotConverged;
+    result.message = fine.message;
+    result.transform = current;
+    result.iterations = iter;
+    return result;
+  }
+  const bool converged = fine.converged;
 
   // Final correspondences at the converged pose.
   const Cloud moved = current.apply(source);
@@ -296,7 +382,7 @@ IcpResult alignIcp(const Cloud& source_in, const Cloud& target, const Sim3& init
     result.message = "icp: too few correspondences at the final pose";
   } else if (!converged) {
     result.status = Status::kIcpNotConverged;
-    result.message = "icp: no convergence within " + std::to_string(o.max_iterations) + " iterations";
+    result.message = "icp: no convergence within " + std::to_string(o.max_iterations) + " iterations on the full sample";
   } else {
     result.status = Status::kOk;
     result.message = "icp converged in " + std::to_string(iter) + " iterations";

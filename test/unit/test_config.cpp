@@ -25,6 +25,8 @@ TEST(Config, ShippedFileLoadsAndStatesTheStructDefaults) {
   EXPECT_EQ(shipped.scale_detection.ratio_threshold, d.scale_detection.ratio_threshold);
   EXPECT_EQ(shipped.filters.steps.size(), d.filters.steps.size());
   EXPECT_EQ(shipped.icp.max_source_points, d.icp.max_source_points);
+  EXPECT_EQ(shipped.icp.coarse_source_points, d.icp.coarse_source_points);
+  EXPECT_EQ(shipped.icp.extrapolation, d.icp.extrapolation);
   EXPECT_EQ(shipped.icp.normal_neighbors, d.icp.normal_neighbors);
   EXPECT_EQ(shipped.icp.max_correspondence_distance, d.icp.max_correspondence_distance);
   EXPECT_EQ(shipped.icp.trim_ratio, d.icp.trim_ratio);

@@ -21,12 +21,20 @@ const char* errorMetricName(ErrorMetric metric);
 /// @return false when the name is unknown
 bool parseErrorMetric(const std::string& name, ErrorMetric* metric);
 
+/// The coarse level's differential check is this many times looser than the final one [-].
+constexpr double kCoarseToleranceFactor = 10.0;
+
 /// Options of the ICP chain; each block mirrors one stage of config/icp.yaml.
 struct IcpOptions {
   // --- sampling
   /// The source is randomly subsampled (deterministic seed) to at most this many points before
   /// the iterations [points]; 0 = all. The target is always used whole.
   int max_source_points = 20000;
+  /// Coarse-to-fine: when the (sampled) source has more than twice this many points, the
+  /// iterations first run on a random subset of this many, until the differential check passes
+  /// at kCoarseToleranceFactor times the thresholds below, then on the whole sample; the counter
+  /// check applies to each level [points]; 0 = one level.
+  int coarse_source_points = 2000;
   // --- matcher
   int normal_neighbors = 10;  ///< neighbours used to estimate target normals (>= 3)
   // --- outlier rejection
@@ -40,6 +48,10 @@ struct IcpOptions {
   bool estimate_scale = false;
   /// Largest relative scale change in one iteration, in (0, 1) [-].
   double max_scale_step = 0.1;
+  /// Extrapolation: when successive steps point the same way and shrink, take the rest of
+  /// their geometric series at once (Besl & McKay's acceleration), which saves most of the
+  /// slow creeping iterations near convergence.
+  bool extrapolation = true;
   /// The scale is kept inside [min_scale_ratio, max_scale_ratio] times the initial scale [-].
   double min_scale_ratio = 0.5;
   double max_scale_ratio = 2.0;
