@@ -105,18 +105,27 @@ Calibration splitSampleCalibration(const Correspondences& matches, const Sim3& t
     return o.calibration_max_points > 0 ? std::min(size, static_cast<std::size_t>(o.calibration_max_points)) : size;
   };
   const std::size_t ns = cap(src_order.size()), nt = cap(tgt_order.size());
-  double sum = 0.0;
-  for (int split = 0; split < o.calibration_splits; ++split) {
+  // The random splits are drawn first, in order, so that the result does not depend on how
+  // the splits are then spread over threads.
+  const auto splits = static_cast<std::size_t>(o.calibration_splits);
+  std::vector<std::vector<Eigen::Index>> src_orders(splits), tgt_orders(splits);
+  for (std::size_t split = 0; split < splits; ++split) {
     std::iota(src_order.begin(), src_order.end(), 0);
     std::iota(tgt_order.begin(), tgt_order.end(), 0);
     std::shuffle(src_order.begin(), src_order.end(), rng);
     std::shuffle(tgt_order.begin(), tgt_order.end(), rng);
+    src_orders[split] = src_order;
+    tgt_orders[split] = tgt_order;
+  }
+  std::vector<double> nees(splits, -1.0);  // < 0: the split did not contribute
+#pragma omp parallel for schedule(dynamic)
+  for (std::size_t split = 0; split < splits; ++split) {
     Sim3 est[2];
     Matrix6d cov[2];
     bool ok = true;
     for (int half = 0; half < 2 && ok; ++half) {
-      const Cloud src = pick(matches.source, src_order, half * ns / 2, (half + 1) * ns / 2);
-      const Cloud tgt = pick(targets, tgt_order, half * nt / 2, (half + 1) * nt / 2);
+      const Cloud src = pick(matches.source, src_orders[split], half * ns / 2, (half + 1) * ns / 2);
+      const Cloud tgt = pick(targets, tgt_orders[split], half * nt / 2, (half + 1) * nt / 2);
       if (src.cols() < 20 || tgt.cols() < 20) {
         ok = false;
         break;
@@ -139,8 +148,14 @@ Calibration splitSampleCalibration(const Correspondences& matches, const Sim3& t
     const Vector6d d = poseDifference(est[0], est[1]);
     const Eigen::LDLT<Matrix6d> ldlt(cov[0] + cov[1]);
     if (ldlt.info() != Eigen::Success) continue;
-    sum += d.dot(ldlt.solve(d)) / 6.0;
-    ++cal.splits;
+    nees[split] = d.dot(ldlt.solve(d)) / 6.0;
+  }
+  double sum = 0.0;
+  for (double v : nees) {
+    if (v >= 0.0) {
+      sum += v;
+      ++cal.splits;
+    }
   }
   if (cal.splits > 0) cal.kappa = sum / cal.splits;
   return cal;

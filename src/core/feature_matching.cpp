@@ -1,9 +1,12 @@
 #include "pcr_pro/core/feature_matching.h"
 
+#include <Eigen/Core>
+
 #include <algorithm>
 #include <cmath>
 #include <opencv2/features2d.hpp>
 #include <opencv2/flann.hpp>
+#include <opencv2/imgproc.hpp>
 #include <string>
 
 namespace pcr_pro {
@@ -29,9 +32,51 @@ cv::FlannBasedMatcher makeMatcher(const FeatureMatchingOptions& options) {
                                cv::makePtr<cv::flann::SearchParams>(options.flann_checks));
 }
 
+// query -> train: FLANN k-NN (k = 2) with the ratio test, then (options.symmetric) the mutual
+// check: the exact nearest query descriptor of each chosen train descriptor (a few hundred
+// scans, cheaper than a second FLANN index, and exact) must be the one that chose it.
+std::vector<cv::DMatch> ratioAndMutual(const cv::Mat& query, const cv::Mat& train, const FeatureMatchingOptions& options) {
+  std::vector<std::vector<cv::DMatch>> knn;
+  makeMatcher(options).knnMatch(query, train, knn, 2);
+  std::vector<cv::DMatch> good;
+  good.reserve(knn.size());
+  for (const auto& m : knn) {
+    if (m.size() < 2) continue;
+    const cv::DMatch& best = m[0];
+    const cv::DMatch& second = m[1];
+    if (best.queryIdx < 0 || best.queryIdx >= query.rows || best.trainIdx < 0 || best.trainIdx >= train.rows) {
+      continue;
+    }
+    if (!std::isfinite(best.distance) || !std::isfinite(second.distance)) continue;
+    if (!(best.distance < options.ratio_test * second.distance)) continue;
+    good.push_back(best);
+  }
+  if (!options.symmetric) return good;
+  using RowMatrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  using ConstRows = Eigen::Map<const RowMatrix, 0, Eigen::OuterStride<>>;
+  const ConstRows eq(query.ptr<float>(), query.rows, query.cols, Eigen::OuterStride<>(query.step1()));
+  const ConstRows et(train.ptr<float>(), train.rows, train.cols, Eigen::OuterStride<>(train.step1()));
+  std::vector<int> best_query_of_train(static_cast<std::size_t>(train.rows), -1);
+  std::vector<cv::DMatch> mutual;
+  mutual.reserve(good.size());
+  for (const cv::DMatch& m : good) {
+    int& back = best_query_of_train[static_cast<std::size_t>(m.trainIdx)];
+    if (back < 0) {
+      Eigen::Index arg = 0;
+      (eq.rowwise() - et.row(m.trainIdx)).rowwise().squaredNorm().minCoeff(&arg);
+      back = static_cast<int>(arg);
+    }
+    if (back == m.queryIdx) mutual.push_back(m);
+  }
+  return mutual;
+}
+
 }  // namespace
 
 void validate(const FeatureMatchingOptions& options) {
+  if (!(options.image_scale > 0.0 && options.image_scale <= 1.0)) {
+    throw InputError("matching.image_scale must be in (0, 1]");
+  }
   if (!(options.nfeatures >= 0)) throw InputError("matching.nfeatures must be >= 0");
   if (!(options.n_octave_layers >= 1)) throw InputError("matching.n_octave_layers must be >= 1");
   if (!(options.contrast_threshold > 0.0) || !std::isfinite(options.contrast_threshold)) {
@@ -61,7 +106,23 @@ KeyframeFeatures extractFeatures(const cv::Mat& gray8, const FeatureMatchingOpti
   }
   cv::Ptr<cv::SIFT> sift = cv::SIFT::create(options.nfeatures, options.n_octave_layers, options.contrast_threshold,
                                             options.edge_threshold, options.sigma);
-  sift->detectAndCompute(gray8, cv::noArray(), features.keypoints, features.descriptors);
+  if (options.image_scale < 1.0) {
+    const cv::Size size(std::max(1, cvRound(gray8.cols * options.image_scale)),
+                        std::max(1, cvRound(gray8.rows * options.image_scale)));
+    cv::Mat small;
+    cv::resize(gray8, small, size, 0.0, 0.0, cv::INTER_AREA);
+    sift->detectAndCompute(small, cv::noArray(), features.keypoints, features.descriptors);
+    // Back to full-resolution pixels: pixel centres map as (x + 0.5) * full / small - 0.5.
+    const float sx = static_cast<float>(gray8.cols) / static_cast<float>(size.width);
+    const float sy = static_cast<float>(gray8.rows) / static_cast<float>(size.height);
+    for (cv::KeyPoint& k : features.keypoints) {
+      k.pt.x = (k.pt.x + 0.5f) * sx - 0.5f;
+      k.pt.y = (k.pt.y + 0.5f) * sy - 0.5f;
+      k.size *= 0.5f * (sx + sy);
+    }
+  } else {
+    sift->detectAndCompute(gray8, cv::noArray(), features.keypoints, features.descriptors);
+  }
   if (features.keypoints.empty()) features.descriptors.release();
   return features;
 }
@@ -78,36 +139,12 @@ FeatureMatches matchFeatures(const KeyframeFeatures& a, const KeyframeFeatures& 
                      std::to_string(desc_b.cols) + ")");
   }
 
-  // a -> b: two nearest neighbours for the ratio test.
-  std::vector<std::vector<cv::DMatch>> knn_ab;
-  makeMatcher(options).knnMatch(desc_a, desc_b, knn_ab, 2);
-
-  // b -> a: nearest neighbour of every b descriptor, for the mutual-best check.
-  std::vector<int> best_a_of_b;
-  if (options.symmetric) {
-    std::vector<std::vector<cv::DMatch>> knn_ba;
-    makeMatcher(options).knnMatch(desc_b, desc_a, knn_ba, 1);
-    best_a_of_b.assign(static_cast<std::size_t>(desc_b.rows), -1);
-    for (const auto& m : knn_ba) {
-      if (m.empty()) continue;
-      const int qb = m[0].queryIdx;
-      if (qb >= 0 && qb < desc_b.rows) best_a_of_b[static_cast<std::size_t>(qb)] = m[0].trainIdx;
-    }
-  }
-
-  std::vector<cv::DMatch> good;
-  good.reserve(knn_ab.size());
-  for (const auto& m : knn_ab) {
-    if (m.size() < 2) continue;
-    const cv::DMatch& best = m[0];
-    const cv::DMatch& second = m[1];
-    if (best.queryIdx < 0 || best.queryIdx >= desc_a.rows || best.trainIdx < 0 || best.trainIdx >= desc_b.rows) {
-      continue;
-    }
-    if (!std::isfinite(best.distance) || !std::isfinite(second.distance)) continue;
-    if (!(best.distance < options.ratio_test * second.distance)) continue;
-    if (options.symmetric && best_a_of_b[static_cast<std::size_t>(best.trainIdx)] != best.queryIdx) continue;
-    good.push_back(best);
+  // With the symmetric check the result does not depend on the direction of the k-NN search,
+  // so the smaller descriptor set queries a FLANN index of the larger one (fewer queries).
+  const bool swap = options.symmetric && desc_a.rows > desc_b.rows;
+  std::vector<cv::DMatch> good = swap ? ratioAndMutual(desc_b, desc_a, options) : ratioAndMutual(desc_a, desc_b, options);
+  if (swap) {
+    for (cv::DMatch& m : good) std::swap(m.queryIdx, m.trainIdx);
   }
   // Without the symmetric check several a-keypoints may share one b-keypoint: that is kept,
   // as in the plain ratio-test matcher.

@@ -12,6 +12,7 @@ using config_detail::validateIn;
 FeatureMatchingOptions loadMatching(const YAML::Node& node, const std::string& origin) {
   FeatureMatchingOptions o;
   Block b(node, "matching", origin);
+  b.get("image_scale", &o.image_scale);
   b.get("nfeatures", &o.nfeatures);
   b.get("n_octave_layers", &o.n_octave_layers);
   b.get("contrast_threshold", &o.contrast_threshold);

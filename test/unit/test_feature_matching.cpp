@@ -2,6 +2,7 @@
 // known homography, on two real consecutive frames, and on degenerate input.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <opencv2/imgcodecs.hpp>
@@ -68,7 +69,8 @@ TEST(FeatureMatching, WarpedImageAgreesWithHomography) {
   cv::Mat warped;
   cv::warpPerspective(img, warped, h, img.size());
 
-  const FeatureMatchingOptions o;
+  FeatureMatchingOptions o;
+  o.image_scale = 1.0;  // full resolution (half size: HalfScaleKeypointsAreInFullResolutionPixels)
   const KeyframeFeatures fa = extractFeatures(img, o);
   const KeyframeFeatures fb = extractFeatures(warped, o);
   EXPECT_GT(fa.keypoints.size(), 500u);
@@ -201,8 +203,52 @@ TEST(FeatureMatching, NonFloatDescriptorsAreConverted) {
   EXPECT_GT(same, static_cast<int>(0.9 * static_cast<double>(m.size())));
 }
 
+// SIFT on the half-size image: the keypoints are in full-resolution pixels, on the same image
+// structures as full-resolution SIFT finds (most within 2 px of a full-resolution keypoint
+// of similar size), and a warped copy still matches through the homography.
+TEST(FeatureMatching, HalfScaleKeypointsAreInFullResolutionPixels) {
+  const cv::Mat img = loadGray("1.png");
+  ASSERT_FALSE(img.empty());
+  FeatureMatchingOptions full;
+  full.image_scale = 1.0;
+  FeatureMatchingOptions half;
+  half.image_scale = 0.5;
+  const KeyframeFeatures ff = extractFeatures(img, full);
+  const KeyframeFeatures fh = extractFeatures(img, half);
+  ASSERT_GT(fh.keypoints.size(), 100u);
+  EXPECT_LT(fh.keypoints.size(), ff.keypoints.size());
+  float max_x = 0.0f, max_y = 0.0f;
+  int near = 0;
+  for (const cv::KeyPoint& k : fh.keypoints) {
+    max_x = std::max(max_x, k.pt.x);
+    max_y = std::max(max_y, k.pt.y);
+    for (const cv::KeyPoint& g : ff.keypoints) {
+      if (cv::norm(k.pt - g.pt) < 2.0f && std::abs(k.size / g.size - 1.0f) < 0.5f) {
+        ++near;
+        break;
+      }
+    }
+  }
+  // Half-size coordinates would all be below half the image size.
+  EXPECT_GT(max_x, 0.75f * static_cast<float>(img.cols));
+  EXPECT_GT(max_y, 0.75f * static_cast<float>(img.rows));
+  EXPECT_GT(near, static_cast<int>(0.7 * static_cast<double>(fh.keypoints.size())));
+
+  const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
+  cv::Mat warped;
+  cv::warpPerspective(img, warped, h, img.size());
+  const FeatureMatches m = matchFeatures(fh, extractFeatures(warped, half), half);
+  ASSERT_GT(m.size(), 50u);
+  int agree = 0;
+  for (std::size_t i = 0; i < m.size(); ++i) {
+    agree += (applyHomography(h, m.pixels_a[i]) - m.pixels_b[i]).norm() < 3.0 ? 1 : 0;
+  }
+  EXPECT_GT(agree, static_cast<int>(0.9 * static_cast<double>(m.size())));
+}
+
 TEST(FeatureMatching, DefaultsAndValidation) {
   const FeatureMatchingOptions d;
+  EXPECT_DOUBLE_EQ(d.image_scale, 0.75);
   EXPECT_EQ(d.nfeatures, 2000);
   EXPECT_EQ(d.n_octave_layers, 3);
   EXPECT_DOUBLE_EQ(d.contrast_threshold, 0.04);
@@ -228,6 +274,12 @@ TEST(FeatureMatching, DefaultsAndValidation) {
   };
   const double nan = std::numeric_limits<double>::quiet_NaN();
   FeatureMatchingOptions o;
+  o.image_scale = 0.0;
+  expectKey(o, "matching.image_scale");
+  o = d;
+  o.image_scale = 1.5;
+  expectKey(o, "matching.image_scale");
+  o = d;
   o.nfeatures = -1;
   expectKey(o, "matching.nfeatures");
   o = d;

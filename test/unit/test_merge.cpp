@@ -116,6 +116,7 @@ TEST(Merge, UnknownKeyframeAndBadMapsGiveInvalidInput) {
 TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
   const MergeOptions shipped = loadMergeConfig(std::string(PCR_PRO_CONFIG_DIR) + "/merge.yaml");
   const MergeOptions d;
+  EXPECT_EQ(shipped.matching.image_scale, d.matching.image_scale);
   EXPECT_EQ(shipped.matching.nfeatures, d.matching.nfeatures);
   EXPECT_EQ(shipped.matching.ratio_test, d.matching.ratio_test);
   EXPECT_EQ(shipped.matching.min_matches, d.matching.min_matches);
