@@ -331,17 +331,20 @@ IcpResult alignIcp(const Cloud& source_in, const Cloud& target, const Sim3& init
 
   Sim3 current = initial;
   int iter = 0;
-  // Coarse level: most of the travel from the initial guess on a small sample, to a looser
-  // differential check; the full sample then only has to settle the last digits.
-  if (o.coarse_source_points > 0 && source.cols() > 2 * static_cast<Eigen::Index>(o.coarse_source_points)) {
-    MaxPointsOptions coarse_sampling;
-    coarse_sampling.max_points = o.coarse_source_points;
-    const Cloud coarse = maxPointsFilter(source, coarse_sampling);
-    const LevelOutcome c = iterateLevel(coarse, target, tree, normals, o, kCoarseToleranceFactor, target_radius,
-                                        min_scale, max_scale, 0, &current);
-    iter += c.iterations;
-    // A failed coarse level (e.g. too few correspondences on the small sample) leaves the
-    // decision to the full sample, from the last good pose.
+  // Coarse levels: most of the travel from the initial guess on small samples (coarse_source_points,
+  // then four times as many, ...), each to a looser differential check; the whole sample then
+  // only has to settle the last digits.
+  if (o.coarse_source_points > 0) {
+    for (Eigen::Index n = o.coarse_source_points; 2 * n < source.cols(); n *= 4) {
+      MaxPointsOptions coarse_sampling;
+      coarse_sampling.max_points = static_cast<int>(n);
+      const Cloud coarse = maxPointsFilter(source, coarse_sampling);
+      const LevelOutcome c = iterateLevel(coarse, target, tree, normals, o, kCoarseToleranceFactor, target_radius,
+                                          min_scale, max_scale, iter, &current);
+      iter += c.iterations;
+      // A failed coarse level (e.g. too few correspondences on a small sample) leaves the
+      // decision to the larger samples, from the last good pose.
+    }
   }
   const LevelOutcome fine =
       iterateLevel(source, target, tree, normals, o, 1.0, target_radius, min_scale, max_scale, iter, &current);

@@ -30,10 +30,11 @@ struct IcpOptions {
   /// The source is randomly subsampled (deterministic seed) to at most this many points before
   /// the iterations [points]; 0 = all. The target is always used whole.
   int max_source_points = 20000;
-  /// Coarse-to-fine: when the (sampled) source has more than twice this many points, the
-  /// iterations first run on a random subset of this many, until the differential check passes
-  /// at kCoarseToleranceFactor times the thresholds below, then on the whole sample; the counter
-  /// check applies to each level [points]; 0 = one level.
+  /// Coarse-to-fine: the iterations first run on random subsets of the (sampled) source of
+  /// this many points, then four times as many, ... (each level used while the sample has more
+  /// than twice its size), each until the differential check passes at kCoarseToleranceFactor
+  /// times the thresholds below; then on the whole sample. The counter check applies to each
+  /// level [points]; 0 = one level.
   int coarse_source_points = 2000;
   // --- matcher
   int normal_neighbors = 10;  ///< neighbours used to estimate target normals (>= 3)
