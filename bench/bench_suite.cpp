@@ -714,7 +714,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "car: %.0f s\n", (nowMs() - t0) / 1000);
     t0 = nowMs();
     if (want("consistency")) consistency(out, quick ? std::vector<std::pair<int, int>>{{2000, 6}}
-                           : std::vector<std::pair<int, int>>{{2000, 40}, {5000, 25}, {10000, 20}},
+                           : std::vector<std::pair<int, int>>{{2000, 100}, {5000, 60}, {10000, 40}},
                 headline);
     std::fprintf(stderr, "consistency: %.0f s\n", (nowMs() - t0) / 1000);
     std::fclose(headline);
