@@ -17,10 +17,13 @@ double msSince(std::chrono::steady_clock::time_point start) {
 }  // namespace
 
 RegistrationReport registerClouds(const Cloud& source, const Cloud& target, const std::optional<Sim3>& initial,
-                                  const RegistrationOptions& options) {
+                                  const RegistrationOptions& options, const KdTree* target_tree) {
   validate(options);
   if (source.cols() == 0) throw InputError("source cloud is empty");
   if (target.cols() == 0) throw InputError("target cloud is empty");
+  if (target_tree && (!options.filters.steps.empty() || target_tree->size() != target.cols())) {
+    throw InputError("registerClouds: a target k-d tree needs an empty filter chain and the target's points");
+  }
   const auto t_total = std::chrono::steady_clock::now();
   RegistrationReport report;
 
@@ -51,7 +54,7 @@ RegistrationReport registerClouds(const Cloud& source, const Cloud& target, cons
   }
 
   t = std::chrono::steady_clock::now();
-  const IcpResult icp = alignIcp(src, tgt, start, options.icp);
+  const IcpResult icp = target_tree ? alignIcp(src, *target_tree, start, options.icp) : alignIcp(src, tgt, start, options.icp);
   report.timings.icp = msSince(t);
   report.transform = icp.transform;
   report.icp_iterations = icp.iterations;

@@ -314,15 +314,23 @@ LevelOutcome iterateLevel(const Cloud& source, const Cloud& target, const KdTree
 
 }  // namespace
 
-IcpResult alignIcp(const Cloud& source_in, const Cloud& target, const Sim3& initial, const IcpOptions& o) {
+IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial, const IcpOptions& o) {
+  validate(o);
+  if (source.cols() == 0) throw InputError("icp: source cloud is empty");
+  if (target.cols() == 0) throw InputError("icp: target cloud is empty");
+  const KdTree tree(target);
+  return alignIcp(source, tree, initial, o);
+}
+
+IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initial, const IcpOptions& o) {
   validate(o);
   if (source_in.cols() == 0) throw InputError("icp: source cloud is empty");
   MaxPointsOptions sampling;
   sampling.max_points = o.max_source_points;
   const Cloud source = maxPointsFilter(source_in, sampling);
+  const Cloud& target = tree.points();
   if (target.cols() == 0) throw InputError("icp: target cloud is empty");
   IcpResult result;
-  KdTree tree(target);
   LazyNormals normals(tree, o.normal_neighbors);
   const Eigen::Vector3d target_centroid = target.rowwise().mean();
   const double target_radius = std::sqrt((target.colwise() - target_centroid).colwise().squaredNorm().mean());

@@ -8,6 +8,7 @@
 #include <optional>
 
 #include "pcr_pro/core/config.h"
+#include "pcr_pro/core/kdtree.h"
 #include "pcr_pro/core/report.h"
 #include "pcr_pro/core/sim3.h"
 
@@ -24,11 +25,14 @@ namespace pcr_pro {
  * @param[in] target cloud in the target frame
  * @param[in] initial initial S_target_source, if known
  * @param[in] options configuration of every stage
+ * @param[in] target_tree optional k-d tree of `target`, built by the caller to query the target
+ *            again afterwards; only with an empty filter chain (the ICP then uses it as is)
  * @return the report; status OK, ICP_NOT_CONVERGED or DEGENERATE (INVALID_INPUT when the
  *         filters leave a cloud empty), with timings
- * @throw InputError on empty clouds or invalid options
+ * @throw InputError on empty clouds, invalid options, or a target_tree with filters or of
+ *        another size than target
  */
 RegistrationReport registerClouds(const Cloud& source, const Cloud& target, const std::optional<Sim3>& initial,
-                                  const RegistrationOptions& options);
+                                  const RegistrationOptions& options, const KdTree* target_tree = nullptr);
 
 }  // namespace pcr_pro

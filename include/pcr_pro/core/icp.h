@@ -13,6 +13,8 @@
 
 namespace pcr_pro {
 
+class KdTree;
+
 /// Error minimised by the ICP step.
 enum class ErrorMetric { kPointToPoint, kPointToPlane };
 
@@ -104,6 +106,10 @@ struct IcpResult {
  * @throw InputError on invalid options or empty clouds
  */
 IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial, const IcpOptions& options);
+
+/// As above, on a k-d tree of the target built by the caller (tree.points() is the target),
+/// for callers that query the target again afterwards.
+IcpResult alignIcp(const Cloud& source, const KdTree& target_tree, const Sim3& initial, const IcpOptions& options);
 
 /**
  * @brief Closed-form similarity (Umeyama) between paired points: dst ≈ s R src + t.
