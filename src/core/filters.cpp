@@ -118,7 +118,7 @@ Cloud outlierRemovalFilter(const Cloud& cloud, const OutlierRemovalOptions& o) {
   {
     std::vector<Eigen::Index> idx;
     std::vector<double> d2;
-#pragma omp for schedule(static)
+#pragma omp for schedule(dynamic, 256)
     for (Eigen::Index i = 0; i < n; ++i) {
       tree.knn(cloud.col(i), o.mean_k + 1, &idx, &d2);  // the first neighbour is the point itself
       double sum = 0.0;

@@ -23,10 +23,12 @@ struct Match {
 };
 
 // Nearest neighbour of every transformed source point, then the distance and trim rejection.
+// Dynamic chunks: a core busy with another process (SLAM runs beside us) then slows the loop
+// down to one thread's speed instead of stalling it at the barrier.
 std::vector<Match> matchAndReject(const Cloud& moved, const KdTree& tree, const IcpOptions& o) {
   const Eigen::Index n = moved.cols();
   std::vector<Match> all(static_cast<std::size_t>(n));
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(dynamic, 256) if (n >= 1024)
   for (Eigen::Index i = 0; i < n; ++i) {
     double d2 = 0.0;
     const Eigen::Index j = tree.nearest(moved.col(i), &d2);

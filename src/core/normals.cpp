@@ -36,7 +36,7 @@ Cloud estimateNormals(const KdTree& tree, int k) {
   {
     std::vector<Eigen::Index> idx;
     std::vector<double> d2;
-#pragma omp for schedule(static)
+#pragma omp for schedule(dynamic, 256)
     for (Eigen::Index i = 0; i < pts.cols(); ++i) normals.col(i) = normalAt(tree, pts.col(i), k, &idx, &d2);
   }
   return normals;
@@ -50,7 +50,7 @@ Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& ind
   {
     std::vector<Eigen::Index> idx;
     std::vector<double> d2;
-#pragma omp for schedule(static)
+#pragma omp for schedule(dynamic, 256)
     for (Eigen::Index i = 0; i < n; ++i) {
       normals.col(i) = normalAt(tree, pts.col(indices[static_cast<std::size_t>(i)]), k, &idx, &d2);
     }
