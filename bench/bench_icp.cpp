@@ -163,6 +163,9 @@ void runCase(const Case& k, int repeats) {
   same.trim_ratio = 1.0;
   same.max_correspondence_distance = k.max_distance;
   same.max_iterations = iterations;
+  same.max_source_points = 0;      // every point, as PCL
+  same.coarse_source_points = 0;   // one level, as PCL
+  same.extrapolation = false;      // plain iterations, as PCL
   IcpOptions defaults;  // our default chain: point-to-plane, trimmed 0.8
   defaults.max_iterations = iterations;
   for (int threads : {1, 2}) ours("ours, point-to-point, same thresholds", same, threads);

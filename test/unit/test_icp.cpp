@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include "pcr_pro/core/cloud_io.h"
 #include "pcr_pro/core/icp.h"
 #include "test_helpers.h"
@@ -98,7 +100,9 @@ TEST(Icp, RealCarScansFromIdentityMatchGroundTruth) {
     const Errors e = compare(r.transform, truth);
     EXPECT_LT(e.rotation_deg, 0.2) << errorMetricName(metric);
     EXPECT_LT(e.translation, 0.05) << errorMetricName(metric);
-    EXPECT_GT(r.correspondences, 15000);
+    // Every sampled source point is matched (no distance limit) and the trim keeps its fraction.
+    ASSERT_GT(source.cols(), o.max_source_points);
+    EXPECT_EQ(r.correspondences, static_cast<int>(std::ceil(o.trim_ratio * o.max_source_points)));
   }
 }
 

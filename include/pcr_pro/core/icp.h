@@ -31,7 +31,7 @@ struct IcpOptions {
   // --- sampling
   /// The source is randomly subsampled (deterministic seed) to at most this many points before
   /// the iterations [points]; 0 = all. The target is always used whole.
-  int max_source_points = 20000;
+  int max_source_points = 10000;
   /// Coarse-to-fine: the iterations first run on random subsets of the (sampled) source of
   /// this many points, then four times as many, ... (each level used while the sample has more
   /// than twice its size), each until the differential check passes at kCoarseToleranceFactor
