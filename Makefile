@@ -46,7 +46,7 @@ bundles:
 
 # --- hardening (issue 6) -------------------------------------------------------------------
 #   make fuzz           build the libFuzzer targets (clang, build-fuzz/) and run each for FUZZ_SECONDS
-#   make test-sanitize  the unit tests under ASan + UBSan (build-asan/)
+#   make test-sanitize  the unit tests and the master-free ROS tests under ASan + UBSan (build-asan/)
 FUZZ_SECONDS ?= 60
 .PHONY: fuzz test-sanitize
 
@@ -57,6 +57,17 @@ fuzz:
 test-sanitize:
 	@scripts/install_deps.sh sanitize
 	JOBS=$(JOBS) scripts/sanitize.sh
+
+#   make soak           the merge node's soak test for SOAK_SECONDS (default 600) with SOAK_INPUT
+#                       (pcr_pro | lsd_slam); `make test` runs it for 60 s with pcr_pro input
+SOAK_SECONDS ?= 600
+SOAK_INPUT ?= pcr_pro
+.PHONY: soak
+soak: deps
+	@$(MAKE) --no-print-directory build
+	source $(BUILD_DIR)/devel/setup.bash && rostest $(CURDIR)/test/ros/soak.test seconds:=$(SOAK_SECONDS) \
+	  input:=$(SOAK_INPUT) report:=$(CURDIR)/$(BUILD_DIR)/soak_report_$(SOAK_INPUT)_$(SOAK_SECONDS)s.txt
+	@cat $(BUILD_DIR)/soak_report_$(SOAK_INPUT)_$(SOAK_SECONDS)s.txt
 # --- end of hardening ----------------------------------------------------------------------
 
 clean:

@@ -2,7 +2,8 @@
 # Builds the libFuzzer targets of test/fuzz (a standalone clang project: the reader sources with
 # -fsanitize=fuzzer-no-link,address,undefined) and runs each for a bounded time.
 #
-# Usage: scripts/fuzz.sh [target ...]        targets: pcd csv bundle merge_config (default: all)
+# Usage: scripts/fuzz.sh [target ...]        targets: pcd csv bundle merge_config ros_cloud ros_keyframe
+#                                            lsd_keyframe lsd_graph (default: all test/fuzz/fuzz_*.cpp)
 #   FUZZ_SECONDS    time per target [s] (default 60)
 #   FUZZ_BUILD_DIR  build directory (default build-fuzz/ at the top of the package)
 #   JOBS            parallel compile jobs (default 2)

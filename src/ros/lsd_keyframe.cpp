@@ -51,8 +51,9 @@ LsdPoints extractPoints(const LsdKeyframe& kf, const LsdFilterOptions& o) {
       if (!std::isfinite(var) || var < 0.0) continue;
       const double depth = 1.0 / idepth;
       const double depth4 = depth * depth * depth * depth;
-      if (var * depth4 > o.scaled_depth_var_th) continue;
-      if (var * depth4 * scale * scale > o.abs_depth_var_th) continue;
+      // Written so that NaN (0 * inf for a tiny idepth with zero variance) fails the test too.
+      if (!(var * depth4 <= o.scaled_depth_var_th)) continue;
+      if (!(var * depth4 * scale * scale <= o.abs_depth_var_th)) continue;
       if (o.min_near_support > 1) {
         int support = 0;
         for (int dy = -1; dy <= 1; ++dy) {
@@ -66,7 +67,10 @@ LsdPoints extractPoints(const LsdKeyframe& kf, const LsdFilterOptions& o) {
         }
         if (support < o.min_near_support) continue;
       }
-      points.emplace_back((x - kf.camera.cx) / kf.camera.fx * depth, (y - kf.camera.cy) / kf.camera.fy * depth, depth);
+      const Eigen::Vector3d p((x - kf.camera.cx) / kf.camera.fx * depth, (y - kf.camera.cy) / kf.camera.fy * depth,
+                              depth);
+      if (!p.allFinite() || !std::isfinite(static_cast<float>(depth))) continue;
+      points.push_back(p);
       out.depth.at<float>(y, x) = static_cast<float>(depth);
     }
   }

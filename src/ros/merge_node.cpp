@@ -41,6 +41,9 @@ std::string joinIds(const std::vector<long>& ids) {
   return s.str();
 }
 
+// Period of the per-(agent, topic) warnings about rejected or trimmed data [s].
+constexpr double kWarnPeriod = 5.0;
+
 }  // namespace
 
 MergeNode::MergeNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, NodeOptions options)
@@ -55,7 +58,7 @@ MergeNode::MergeNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, Node
   for (const AgentOptions& a : options_.agents) {
     auto agent = std::make_unique<Agent>();
     agent->options = a;
-    agent->store = AgentStore(a.frame_id);
+    agent->store = AgentStore(a.frame_id, options_.limits);
     Agent* raw = agent.get();
     const int q = options_.queue_size;
     if (options_.input == InputMode::kPcrPro) {
@@ -91,8 +94,9 @@ MergeNode::MergeNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, Node
 
   std::ostringstream agents;
   for (const AgentOptions& a : options_.agents) agents << " " << a.name << " (" << a.frame_id << ")";
-  ROS_INFO("pcr_pro merge node: input %s, agents:%s; service %s", inputModeName(options_.input),
-           agents.str().c_str(), merge_service_.getService().c_str());
+  ROS_INFO("pcr_pro merge node: input %s, agents:%s; service %s; per agent at most %d keyframes and %d map points",
+           inputModeName(options_.input), agents.str().c_str(), merge_service_.getService().c_str(),
+           options_.limits.max_keyframes, options_.limits.max_cloud_points);
 }
 
 MergeNode::~MergeNode() {
@@ -109,13 +113,52 @@ MergeNode::~MergeNode() {
 
 // --- data callbacks ---------------------------------------------------------------------------
 
-void MergeNode::reject(Agent* agent, const std::string& topic, const std::string& what) {
-  {
-    std::lock_guard<std::mutex> lock(agent->mutex);
-    ++agent->rejected;
-    agent->last_rejection = topic + ": " + what;
+void MergeNode::warnThrottled(Agent* agent, const std::string& key, const std::string& text) {
+  Throttle& t = agent->throttles[key];
+  const ros::WallTime now = ros::WallTime::now();
+  if (!t.last.isZero() && (now - t.last).toSec() < kWarnPeriod) {
+    ++t.suppressed;
+    return;
   }
-  ROS_WARN_THROTTLE(5.0, "rejected a message on %s: %s", topic.c_str(), what.c_str());
+  if (t.suppressed > 0) {
+    ROS_WARN("%s (and %zu more like it in the last %.0f s)", text.c_str(), t.suppressed, (now - t.last).toSec());
+  } else {
+    ROS_WARN("%s", text.c_str());
+  }
+  t.last = now;
+  t.suppressed = 0;
+}
+
+void MergeNode::reject(Agent* agent, const std::string& topic, const std::string& what) {
+  std::lock_guard<std::mutex> lock(agent->mutex);
+  ++agent->rejected;
+  agent->last_rejection = topic + ": " + what;
+  warnThrottled(agent, "reject " + topic,
+                "rejected a message on " + nh_.resolveName(topic) + " (agent " + agent->options.name + "): " + what);
+}
+
+void MergeNode::noteDropped(Agent* agent, const std::string& topic, long added, const std::vector<long>& dropped) {
+  if (dropped.empty()) return;
+  agent->keyframes_dropped += dropped.size();
+  warnThrottled(agent, "drop " + topic,
+                agent->options.name + ": max_keyframes_per_agent = " + std::to_string(options_.limits.max_keyframes) +
+                    " reached: keyframe " + std::to_string(added) + " made the node drop keyframe(s) " +
+                    joinIds(dropped) + ", received longest ago (" + std::to_string(agent->keyframes_dropped) +
+                    " dropped so far)");
+}
+
+void MergeNode::noteCloudCap(Agent* agent, const std::string& what, const CloudCap& cap) {
+  if (!cap.capped()) return;
+  ++agent->clouds_voxelised;
+  std::ostringstream s;
+  s << what << ": " << cap.input_points << " points > max_cloud_points_per_agent = " << options_.limits.max_cloud_points
+    << ": ";
+  if (cap.subsampled) {
+    s << "randomly subsampled to " << cap.kept_points << " points (the voxel grid could not reach the cap)";
+  } else {
+    s << "voxelised with leaf " << cap.leaf << " [map units] to " << cap.kept_points << " points";
+  }
+  warnThrottled(agent, "cap " + what, s.str());
 }
 
 void MergeNode::onKeyframe(Agent* agent, const pcr_pro::Keyframe::ConstPtr& msg) {
@@ -123,14 +166,16 @@ void MergeNode::onKeyframe(Agent* agent, const pcr_pro::Keyframe::ConstPtr& msg)
   try {
     const DecodedKeyframe data = keyframeFromMsg(*msg);
     if (!data.frame_id.empty() && data.frame_id != agent->options.frame_id) {
-      reject(agent, topic, "header.frame_id '" + data.frame_id + "' is not the agent's map frame '" +
+      reject(agent, topic, "header.frame_id '" + printable(data.frame_id) + "' is not the agent's map frame '" +
                                agent->options.frame_id + "'");
       return;
     }
     std::lock_guard<std::mutex> lock(agent->mutex);
     const bool first = agent->store.keyframeCount() == 0;
-    const bool replaced = agent->store.setKeyframe(data.keyframe, data.camera);
+    std::vector<long> dropped;
+    const bool replaced = agent->store.setKeyframe(data.keyframe, data.camera, &dropped);
     ++agent->received;
+    noteDropped(agent, topic, data.keyframe.id, dropped);
     if (first) ROS_INFO("%s: first keyframe (id %ld)", agent->options.name.c_str(), data.keyframe.id);
     ROS_DEBUG("%s: keyframe %ld %s", agent->options.name.c_str(), data.keyframe.id, replaced ? "replaced" : "added");
   } catch (const InputError& e) {
@@ -141,22 +186,36 @@ void MergeNode::onKeyframe(Agent* agent, const pcr_pro::Keyframe::ConstPtr& msg)
 void MergeNode::onCloud(Agent* agent, const sensor_msgs::PointCloud2::ConstPtr& msg) {
   const std::string topic = agent->options.name + "/cloud";
   if (!msg->header.frame_id.empty() && msg->header.frame_id != agent->options.frame_id) {
-    reject(agent, topic, "header.frame_id '" + msg->header.frame_id + "' is not the agent's map frame '" +
+    reject(agent, topic, "header.frame_id '" + printable(msg->header.frame_id) + "' is not the agent's map frame '" +
                              agent->options.frame_id + "'");
     return;
   }
   try {
-    Cloud cloud = cloudFromMsg(*msg);
+    const Cloud cloud = cloudFromMsg(*msg);
+    const std::uint64_t points = static_cast<std::uint64_t>(msg->width) * msg->height;
+    const std::uint64_t nonfinite = points - static_cast<std::uint64_t>(cloud.cols());
     if (cloud.cols() == 0) {
-      reject(agent, topic, "the cloud has no finite point");
+      reject(agent, topic, "cloud: no finite point (" + std::to_string(nonfinite) + " of " + std::to_string(points) +
+                               " points have a NaN/Inf coordinate)");
       return;
     }
+    // The cap's voxel passes run outside the agent's lock.
+    CloudCap cap;
+    Cloud kept = capCloud(cloud, options_.limits.max_cloud_points, &cap);
     std::lock_guard<std::mutex> lock(agent->mutex);
     if (agent->store.cloudPoints() == 0) {
       ROS_INFO("%s: first map cloud (%ld points)", agent->options.name.c_str(), static_cast<long>(cloud.cols()));
     }
-    agent->store.setCloud(std::move(cloud));
+    agent->store.setCloud(std::move(kept));
     ++agent->received;
+    if (nonfinite > 0) {
+      agent->points_dropped_nonfinite += nonfinite;
+      warnThrottled(agent, "nonfinite " + topic,
+                    nh_.resolveName(topic) + " (agent " + agent->options.name + "): dropped " +
+                        std::to_string(nonfinite) + " of " + std::to_string(points) +
+                        " points with a NaN/Inf coordinate; kept the rest");
+    }
+    noteCloudCap(agent, nh_.resolveName(topic), cap);
   } catch (const InputError& e) {
     reject(agent, topic, e.what());
   }
@@ -172,8 +231,10 @@ void MergeNode::onLsdKeyframe(Agent* agent, const lsd_slam_viewer::keyframeMsg::
     const LsdKeyframe kf = lsdKeyframeFromMsg(*msg);
     std::lock_guard<std::mutex> lock(agent->mutex);
     const bool first = agent->store.keyframeCount() == 0;
-    const bool replaced = agent->store.setLsdKeyframe(kf);
+    std::vector<long> dropped;
+    const bool replaced = agent->store.setLsdKeyframe(kf, &dropped);
     ++agent->received;
+    noteDropped(agent, topic, kf.id, dropped);
     if (first) ROS_INFO("%s: first LSD-SLAM keyframe (id %ld)", agent->options.name.c_str(), kf.id);
     ROS_DEBUG("%s: LSD-SLAM keyframe %ld %s", agent->options.name.c_str(), kf.id, replaced ? "replaced" : "added");
   } catch (const InputError& e) {
@@ -198,7 +259,15 @@ void MergeNode::onLsdGraph(Agent* agent, const lsd_slam_viewer::keyframeGraphMsg
 // --- the merge service ------------------------------------------------------------------------
 
 bool MergeNode::onMergeService(pcr_pro::MergeMaps::Request& request, pcr_pro::MergeMaps::Response& response) {
-  std::packaged_task<Response()> task([this, request] { return merge(request); });
+  // Whatever goes wrong inside (e.g. std::bad_alloc), the caller gets an answer with a status.
+  std::packaged_task<Response()> task([this, request] {
+    try {
+      return merge(request);
+    } catch (const std::exception& e) {
+      ROS_ERROR("merge failed with an exception: %s", e.what());
+      return answer(Response::INVALID_INPUT, "INVALID_INPUT", std::string("the merge failed: ") + e.what());
+    }
+  });
   std::future<Response> result = task.get_future();
   {
     std::lock_guard<std::mutex> lock(jobs_mutex_);
@@ -234,8 +303,11 @@ Response MergeNode::merge(const pcr_pro::MergeMaps::Request& request) {
     }
     return nullptr;
   };
-  const std::string target_name = request.target_agent.empty() ? options_.agents[0].name : request.target_agent;
-  const std::string source_name = request.source_agent.empty() ? options_.agents[1].name : request.source_agent;
+  // Names from the request are quoted only through printable(): they may hold anything.
+  const std::string target_name =
+      request.target_agent.empty() ? options_.agents[0].name : printable(request.target_agent, 200);
+  const std::string source_name =
+      request.source_agent.empty() ? options_.agents[1].name : printable(request.source_agent, 200);
   Agent* target = find(target_name);
   Agent* source = find(source_name);
 
@@ -251,26 +323,39 @@ Response MergeNode::merge(const pcr_pro::MergeMaps::Request& request) {
   } else {
     // Snapshot: copies of the stores (images are shared, never written in place).
     AgentStore source_copy, target_copy;
+    std::string source_rejections, target_rejections;
+    const auto rejections = [](const Agent& a) {
+      if (a.rejected == 0) return std::string();
+      return "; " + std::to_string(a.rejected) + " message(s) rejected, the last: " + a.last_rejection;
+    };
     {
       std::lock_guard<std::mutex> lock(source->mutex);
       source_copy = source->store;
+      source_rejections = rejections(*source);
     }
     {
       std::lock_guard<std::mutex> lock(target->mutex);
       target_copy = target->store;
+      target_rejections = rejections(*target);
     }
-    const AgentMap source_map = source_copy.toAgentMap(options_.lsd);
-    const AgentMap target_map = target_copy.toAgentMap(options_.lsd);
+    CloudCap source_cap, target_cap;
+    const AgentMap source_map = source_copy.toAgentMap(options_.lsd, &source_cap);
+    const AgentMap target_map = target_copy.toAgentMap(options_.lsd, &target_cap);
+    for (const auto& [agent, cap] : {std::pair{source, &source_cap}, std::pair{target, &target_cap}}) {
+      std::lock_guard<std::mutex> lock(agent->mutex);
+      noteCloudCap(agent, agent->options.name + ": LSD-SLAM map cloud", *cap);
+    }
     const bool lsd = options_.input == InputMode::kLsdSlam;
     std::string missing;
-    for (const auto& [agent, map] : {std::pair{target, &target_map}, std::pair{source, &source_map}}) {
+    for (const auto& [agent, map, why] : {std::tuple{target, &target_map, &target_rejections},
+                                          std::tuple{source, &source_map, &source_rejections}}) {
       if (!missing.empty()) break;
       const std::string& n = agent->options.name;
       if (map->keyframes.empty()) {
-        missing = n + ": no keyframe received yet (topic " + n + (lsd ? "/lsd_slam/keyframes)" : "/keyframes)");
+        missing = n + ": no keyframe received yet (topic " + n + (lsd ? "/lsd_slam/keyframes)" : "/keyframes)") + *why;
       } else if (map->cloud.cols() == 0) {
-        missing = lsd ? n + ": no point of its LSD-SLAM keyframes passes the lsd/ filters"
-                      : n + ": no map cloud received yet (topic " + n + "/cloud)";
+        missing = lsd ? n + ": no point of its LSD-SLAM keyframes passes the lsd/ filters" + *why
+                      : n + ": no map cloud received yet (topic " + n + "/cloud)" + *why;
       }
     }
     MergeRequest merge_request;
@@ -363,6 +448,9 @@ void MergeNode::agentDiagnostics(Agent* agent, diagnostic_updater::DiagnosticSta
   s.add("messages_received", agent->received);
   s.add("messages_rejected", agent->rejected);
   s.add("last_rejection", agent->last_rejection);
+  s.add("keyframes_dropped", agent->keyframes_dropped);
+  s.add("clouds_voxelised", agent->clouds_voxelised);
+  s.add("points_dropped_nonfinite", agent->points_dropped_nonfinite);
 }
 
 void MergeNode::mergeDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& s) {

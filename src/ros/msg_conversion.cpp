@@ -4,6 +4,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sensor_msgs/image_encodings.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <sstream>
@@ -22,13 +23,26 @@ std::string str(const T& v) {
   return s.str();
 }
 
+// Largest image side accepted [px] (also for CameraInfo and LSD keyframes): keeps every size
+// product in range of int and of the 64-bit arithmetic below.
+constexpr std::uint32_t kMaxImageSide = 100000;
+// Similarity poses: scale in [1/kMaxScale, kMaxScale], |translation| components <= kMaxTranslation;
+// beyond that a pose is degenerate (it would put map points at infinity or on one point).
+constexpr double kMaxScale = 1e9;
+constexpr double kMaxTranslation = 1e9;
+
 void checkImageLayout(const sensor_msgs::Image& msg, std::size_t pixel_bytes, const std::string& field) {
   if (msg.width == 0 || msg.height == 0) {
     fail(field, "empty image (" + str(msg.width) + "x" + str(msg.height) + ")");
   }
+  if (msg.width > kMaxImageSide || msg.height > kMaxImageSide) {
+    fail(field, "image size " + str(msg.width) + "x" + str(msg.height) + " is beyond " + str(kMaxImageSide) +
+                    " pixels a side");
+  }
   const std::uint64_t min_step = static_cast<std::uint64_t>(msg.width) * pixel_bytes;
   if (msg.step < min_step) {
-    fail(field, "step " + str(msg.step) + " < width * pixel size " + str(min_step) + " (" + msg.encoding + ")");
+    fail(field,
+         "step " + str(msg.step) + " < width * pixel size " + str(min_step) + " (" + printable(msg.encoding) + ")");
   }
   const std::uint64_t expected = static_cast<std::uint64_t>(msg.step) * msg.height;
   if (msg.data.size() != expected) {
@@ -38,7 +52,42 @@ void checkImageLayout(const sensor_msgs::Image& msg, std::size_t pixel_bytes, co
 
 bool finite(double v) { return std::isfinite(v); }
 
+// A translation within the pose bounds. @throw InputError naming `field`
+void checkTranslation(double x, double y, double z, const std::string& field) {
+  if (!finite(x) || !finite(y) || !finite(z)) fail(field, "must be finite");
+  if (std::abs(x) > kMaxTranslation || std::abs(y) > kMaxTranslation || std::abs(z) > kMaxTranslation) {
+    fail(field, "degenerate: a component beyond " + str(kMaxTranslation) + " map units");
+  }
+}
+
+// A similarity scale within the pose bounds. @throw InputError naming `field`
+void checkScale(double s, const std::string& field) {
+  if (!finite(s) || !(s >= 1.0 / kMaxScale) || s > kMaxScale) {
+    fail(field, "degenerate similarity: scale must be finite and in [1e-9, 1e9], got " + str(s));
+  }
+}
+
 }  // namespace
+
+// --- text from messages -----------------------------------------------------------------------
+
+std::string printable(const std::string& text, std::size_t max_length) {
+  std::string out;
+  const std::size_t n = std::min(text.size(), max_length);
+  for (std::size_t i = 0; i < n; ++i) {
+    const unsigned char c = static_cast<unsigned char>(text[i]);
+    if (c >= 0x20 && c < 0x7f) {
+      out += static_cast<char>(c);
+    } else {
+      static const char* hex = "0123456789abcdef";
+      out += "\\x";
+      out += hex[c >> 4];
+      out += hex[c & 15];
+    }
+  }
+  if (text.size() > max_length) out += "...";
+  return out;
+}
 
 // --- camera and poses -------------------------------------------------------------------------
 
@@ -54,8 +103,9 @@ PinholeCamera cameraFromMsg(const sensor_msgs::CameraInfo& msg) {
     fail("camera_info.K", "focal lengths must be finite and > 0, got fx " + str(c.fx) + ", fy " + str(c.fy));
   }
   if (!finite(c.cx) || !finite(c.cy)) fail("camera_info.K", "principal point must be finite");
-  if (msg.width == 0 || msg.height == 0 || msg.width > 100000 || msg.height > 100000) {
-    fail("camera_info", "image size must be > 0, got " + str(msg.width) + "x" + str(msg.height));
+  if (msg.width == 0 || msg.height == 0 || msg.width > kMaxImageSide || msg.height > kMaxImageSide) {
+    fail("camera_info", "image size must be > 0 and <= " + str(kMaxImageSide) + " a side, got " + str(msg.width) +
+                            "x" + str(msg.height));
   }
   for (std::size_t i = 0; i < msg.D.size(); ++i) {
     if (msg.D[i] != 0.0) {
@@ -82,11 +132,12 @@ sensor_msgs::CameraInfo cameraToMsg(const PinholeCamera& camera) {
 Sim3 sim3FromPose(const geometry_msgs::Pose& pose, double scale) {
   const auto& q = pose.orientation;
   const auto& p = pose.position;
-  if (!finite(p.x) || !finite(p.y) || !finite(p.z)) fail("pose.position", "must be finite");
+  checkTranslation(p.x, p.y, p.z, "pose.position");
   const Eigen::Quaterniond quat(q.w, q.x, q.y, q.z);
   const double n = quat.norm();
   if (!finite(n) || n < 1e-9) fail("pose.orientation", "must be a finite, non-zero quaternion");
   if (!finite(scale) || !(scale > 0.0)) fail("scale", "must be finite and > 0, got " + str(scale));
+  checkScale(scale, "scale");
   return Sim3(scale, quat.normalized(), Eigen::Vector3d(p.x, p.y, p.z));
 }
 
@@ -120,7 +171,7 @@ cv::Mat greyImageFromMsg(const sensor_msgs::Image& msg, const std::string& field
   } else if (msg.encoding == enc::BGRA8) {
     channels = 4, code = cv::COLOR_BGRA2GRAY;
   } else {
-    fail(field, "unsupported encoding '" + msg.encoding + "' (mono8, rgb8, bgr8, rgba8, bgra8)");
+    fail(field, "unsupported encoding '" + printable(msg.encoding) + "' (mono8, rgb8, bgr8, rgba8, bgra8)");
   }
   checkImageLayout(msg, static_cast<std::size_t>(channels), field);
   const cv::Mat view(static_cast<int>(msg.height), static_cast<int>(msg.width), CV_8UC(channels),
@@ -151,7 +202,7 @@ cv::Mat depthFromMsg(const sensor_msgs::Image& msg, const std::string& field) {
   namespace enc = sensor_msgs::image_encodings;
   const bool is_float = msg.encoding == enc::TYPE_32FC1;
   const bool is_mm = msg.encoding == enc::TYPE_16UC1 || msg.encoding == enc::MONO16;
-  if (!is_float && !is_mm) fail(field, "unsupported encoding '" + msg.encoding + "' (32FC1, 16UC1)");
+  if (!is_float && !is_mm) fail(field, "unsupported encoding '" + printable(msg.encoding) + "' (32FC1, 16UC1)");
   if (msg.is_bigendian) fail(field, "big-endian depth data is not supported");
   checkImageLayout(msg, is_float ? 4 : 2, field);
   const int rows = static_cast<int>(msg.height), cols = static_cast<int>(msg.width);
@@ -251,10 +302,14 @@ pcr_pro::Keyframe keyframeToMsg(const MapKeyframe& keyframe, const PinholeCamera
 }
 
 Cloud cloudFromMsg(const sensor_msgs::PointCloud2& msg) {
-  const std::uint64_t expected = static_cast<std::uint64_t>(msg.width) * msg.height * msg.point_step;
-  if (expected != msg.data.size()) {
+  // width * height * point_step can exceed 64 bits (3 x 32 bits): compare without overflow.
+  const std::uint64_t points = static_cast<std::uint64_t>(msg.width) * msg.height;
+  const bool fits = msg.point_step == 0 || points <= msg.data.size() / msg.point_step;
+  const std::uint64_t expected = fits ? points * msg.point_step : 0;
+  if (!fits || expected != msg.data.size()) {
     fail("cloud", "width * height * point_step = " + str(msg.width) + " * " + str(msg.height) + " * " +
-                      str(msg.point_step) + " = " + str(expected) + " != data size " + str(msg.data.size()));
+                      str(msg.point_step) + (fits ? " = " + str(expected) : std::string()) + " != data size " +
+                      str(msg.data.size()));
   }
   if (msg.height > 0 && static_cast<std::uint64_t>(msg.row_step) != static_cast<std::uint64_t>(msg.width) * msg.point_step) {
     fail("cloud", "row_step " + str(msg.row_step) + " != width * point_step " +
@@ -411,6 +466,8 @@ Sim3 sim3FromLsd(const float* v) {
   const Eigen::Quaterniond q(v[3], v[0], v[1], v[2]);
   const double s = q.norm();
   if (!(s > 1e-9)) fail("camToWorld", "degenerate similarity: quaternion part (scale) is zero");
+  checkScale(s, "camToWorld");
+  checkTranslation(v[4], v[5], v[6], "camToWorld");
   return Sim3(s, q.normalized(), Eigen::Vector3d(v[4], v[5], v[6]));
 }
 
@@ -426,8 +483,9 @@ LsdKeyframe lsdKeyframeFromMsg(const lsd_slam_viewer::keyframeMsg& msg) {
   LsdKeyframe kf;
   kf.id = msg.id;
   kf.time = msg.time;
-  if (msg.width == 0 || msg.height == 0 || msg.width > 100000 || msg.height > 100000) {
-    fail("width/height", "image size must be > 0, got " + str(msg.width) + "x" + str(msg.height));
+  if (msg.width == 0 || msg.height == 0 || msg.width > kMaxImageSide || msg.height > kMaxImageSide) {
+    fail("width/height", "image size must be > 0 and <= " + str(kMaxImageSide) + " a side, got " + str(msg.width) +
+                             "x" + str(msg.height));
   }
   kf.camera.fx = msg.fx;
   kf.camera.fy = msg.fy;

@@ -109,6 +109,7 @@ void validate(const NodeOptions& o) {
   if (o.queue_size < 1) fail("queue_size", "must be >= 1, got " + std::to_string(o.queue_size));
   try {
     validate(o.lsd);
+    validate(o.limits);
     validate(o.merge);
   } catch (const InputError& e) {
     throw InputError(std::string("~") + e.what());
@@ -146,11 +147,13 @@ NodeOptions loadNodeOptions(const ros::NodeHandle& pnh) {
   p.read("lsd/abs_depth_var_th", &o.lsd.abs_depth_var_th);
   p.read("lsd/min_near_support", &o.lsd.min_near_support);
   p.read("lsd/sparsify_factor", &o.lsd.sparsify_factor);
+  p.read("max_keyframes_per_agent", &o.limits.max_keyframes);
+  p.read("max_cloud_points_per_agent", &o.limits.max_cloud_points);
 
   // Unknown keys under ~ are typos: refuse them rather than silently using a default.
   std::set<std::string> known{"agents", "input", "queue_size", "publish_tf", "merge_config", "icp_config",
                               "lsd/scaled_depth_var_th", "lsd/abs_depth_var_th", "lsd/min_near_support",
-                              "lsd/sparsify_factor",
+                              "lsd/sparsify_factor", "max_keyframes_per_agent", "max_cloud_points_per_agent",
                               "diagnostic_period"};  // read by diagnostic_updater
   for (const AgentOptions& a : o.agents) known.insert(a.name + "/frame_id");
   std::vector<std::string> all;

@@ -5,20 +5,25 @@
 #include <diagnostic_msgs/DiagnosticArray.h>
 #include <gtest/gtest.h>
 #include <ros/ros.h>
+#include <rosgraph_msgs/Log.h>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_listener.h>
 
+#include <atomic>
 #include <cstdio>
+#include <cstring>
 #include <map>
 #include <mutex>
 #include <sys/wait.h>
+#include <thread>
 
 #include "pcr_pro/MergeMaps.h"
 #include "pcr_pro/core/bundle.h"
 #include "pcr_pro/ros/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
+#include "pcr_pro/ros/node_options.h"
 
 namespace pcr_pro {
 namespace ros_bridge {
@@ -78,6 +83,46 @@ class DiagnosticsWatcher {
   ros::Subscriber sub_;
 };
 
+// The merge node's warnings on /rosout.
+class WarningWatcher {
+ public:
+  explicit WarningWatcher(ros::NodeHandle& nh)
+      : sub_(nh.subscribe("/rosout", 500, &WarningWatcher::onLog, this)) {}
+  /// Warnings so far whose text contains every one of `words`.
+  std::vector<std::string> matching(std::initializer_list<std::string> words) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::vector<std::string> out;
+    for (const std::string& w : warnings_) {
+      bool all = true;
+      for (const std::string& word : words) all = all && w.find(word) != std::string::npos;
+      if (all) out.push_back(w);
+    }
+    return out;
+  }
+  bool waitFor(std::initializer_list<std::string> words, double seconds = 15.0) {
+    const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(seconds);
+    while (ros::ok() && ros::WallTime::now() < end) {
+      if (!matching(words).empty()) return true;
+      ros::WallDuration(0.1).sleep();
+    }
+    return false;
+  }
+  void clear() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    warnings_.clear();
+  }
+
+ private:
+  void onLog(const rosgraph_msgs::Log::ConstPtr& msg) {
+    if (msg->level != rosgraph_msgs::Log::WARN || msg->name != "/merge_node") return;
+    std::lock_guard<std::mutex> lock(mutex_);
+    warnings_.push_back(msg->msg);
+  }
+  std::mutex mutex_;
+  std::vector<std::string> warnings_;
+  ros::Subscriber sub_;
+};
+
 // Keeps the latest message of a (latched) topic.
 template <typename M>
 class Latest {
@@ -131,6 +176,22 @@ Response callMerge(const std::string& source = "", const std::string& target = "
   EXPECT_TRUE(ros::service::waitForService(kService, ros::Duration(30.0)));
   EXPECT_TRUE(ros::service::call(kService, srv));
   return srv.response;
+}
+
+// Waits until `pub` has a subscriber (the node), so that nothing published is lost.
+bool waitForSubscriber(const ros::Publisher& pub, double seconds = 20.0) {
+  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(seconds);
+  while (ros::ok() && ros::WallTime::now() < end) {
+    if (pub.getNumSubscribers() > 0) return true;
+    ros::WallDuration(0.05).sleep();
+  }
+  return false;
+}
+
+// A diagnostics value as a number (-1 while unknown).
+long number(DiagnosticsWatcher& d, const std::string& task, const std::string& key) {
+  const std::string v = d.value(task, key);
+  return v.empty() ? -1 : std::stol(v);
 }
 
 // Reads a bag into agent stores, as the node does (for the expected cloud sizes).
@@ -233,6 +294,59 @@ TEST(FromLsdBag, MergesToTheTruthAndGraphUpdatesMoveKeyframes) {
 
   // A pose-graph update that moves all of agent_b's keyframes by G: the merge must follow,
   // S_target_source' = S * G^-1.
+  // Bad LSD-SLAM messages for agent_b: every one is rejected (counted, with a throttled warning
+  // naming the topic and the field); agent_b's keyframes stay, and the merge after the graph update
+  // below still works on them.
+  {
+    WarningWatcher warnings(nh);
+    ros::Publisher bad_keyframes = nh.advertise<lsd_slam_viewer::keyframeMsg>("agent_b/lsd_slam/keyframes", 10);
+    ros::Publisher bad_graphs = nh.advertise<lsd_slam_viewer::keyframeGraphMsg>("agent_b/lsd_slam/graph", 10);
+    ASSERT_TRUE(waitForSubscriber(bad_keyframes) && waitForSubscriber(bad_graphs));
+    ros::WallDuration(0.5).sleep();  // the node's side of the new connections
+    LsdKeyframe small;
+    small.id = 3;  // an id agent_b has: a rejected message must not replace it
+    small.camera = {50.0, 52.0, 20.0, 15.0, 40, 30};
+    small.cam_to_world = Sim3();
+    small.idepth = cv::Mat(30, 40, CV_32FC1, cv::Scalar(0.5f));
+    small.idepth_var = cv::Mat(30, 40, CV_32FC1, cv::Scalar(1e-5f));
+    small.image = cv::Mat(30, 40, CV_8UC1, cv::Scalar(90));
+    const lsd_slam_viewer::keyframeMsg good = lsdKeyframeToMsg(small);
+    auto m = good;
+    m.pointcloud.resize(m.pointcloud.size() - 12);  // not width * height * 12
+    bad_keyframes.publish(m);
+    m = good;
+    std::fill(m.camToWorld.begin(), m.camToWorld.begin() + 4, 0.0f);  // degenerate Sim3
+    bad_keyframes.publish(m);
+    m = good;
+    m.fx = 0.0f;  // zero intrinsics
+    bad_keyframes.publish(m);
+    bad_keyframes.publish(good);  // valid, but not agent_b's camera
+    // (one topic after the other: messages on two connections may arrive in any order)
+    ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_rejected", "4"))
+        << "rejected: " << diagnostics.value("agent agent_b", "messages_rejected");
+    LsdGraph bad_graph;
+    bad_graph.poses = {{3, Sim3()}, {5, Sim3()}};
+    auto g = lsdGraphToMsg(bad_graph);
+    g.numFrames = 3;  // inconsistent count
+    bad_graphs.publish(g);
+    g = lsdGraphToMsg(bad_graph);
+    std::memset(&g.frameData[4], 0, 16);  // keyframe 3: zero quaternion
+    bad_graphs.publish(g);
+    ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_rejected", "6"))
+        << "rejected: " << diagnostics.value("agent agent_b", "messages_rejected");
+    EXPECT_TRUE(warnings.waitFor({"/agent_b/lsd_slam/keyframes", "agent_b", "pointcloud", "width * height * 12"}))
+        << "no warning naming the topic and the field";
+    EXPECT_TRUE(warnings.waitFor({"/agent_b/lsd_slam/graph", "agent_b", "frameData"}));
+    // Throttled: one warning per topic for the burst, while all six were counted.
+    EXPECT_EQ(warnings.matching({"/agent_b/lsd_slam/keyframes"}).size(), 1u);
+    EXPECT_EQ(warnings.matching({"/agent_b/lsd_slam/graph"}).size(), 1u);
+    EXPECT_NE(diagnostics.value("agent agent_b", "last_rejection").find("lsd_slam/graph: frameData[0] (keyframe 3)"),
+              std::string::npos)
+        << diagnostics.value("agent agent_b", "last_rejection");
+    EXPECT_EQ(diagnostics.value("agent agent_b", "keyframe_ids"), "3, 5");
+    EXPECT_EQ(diagnostics.value("agent agent_b", "graph_updates"), "1");
+  }
+
   LsdGraph graph;
   {
     rosbag::Bag b(bag, rosbag::bagmode::Read);
@@ -344,6 +458,175 @@ TEST_F(Live, MergesAndAResentKeyframeIdReplacesTheOldOne) {
   EXPECT_NE(unknown.message.find("42"), std::string::npos);
 }
 
+TEST_F(Live, EveryBadMessageClassIsRejectedWithAThrottledWarningAndEarlierDataIsKept) {
+  DiagnosticsWatcher diagnostics(nh_);
+  WarningWatcher warnings(nh_);
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "frame_id", "agent_b/map"));
+  const long received_a = number(diagnostics, "agent agent_a", "messages_received");
+  const long received_b = number(diagnostics, "agent agent_b", "messages_received");
+  publishAgent("agent_a");
+  publishAgent("agent_b");
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "messages_received", std::to_string(received_a + 4)));
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_received", std::to_string(received_b + 3)));
+  const long rejected_a = number(diagnostics, "agent agent_a", "messages_rejected");
+  const long rejected_b = number(diagnostics, "agent agent_b", "messages_rejected");
+  const std::string ids_a = diagnostics.value("agent agent_a", "keyframe_ids");
+  const std::string ids_b = diagnostics.value("agent agent_b", "keyframe_ids");
+  const std::string points_a = diagnostics.value("agent agent_a", "cloud_points");
+  const std::string points_b = diagnostics.value("agent agent_b", "cloud_points");
+  ASSERT_EQ(ids_a, "1, 2, 4");
+  ASSERT_EQ(ids_b, "3, 5");
+
+  // A burst of bad messages of every class on agent_a's topics, one on agent_b's.
+  const AgentMap map = loadBundle(kDataDir + "/bundles/depth/agent_a");
+  const sensor_msgs::PointCloud2 cloud = cloudToMsg(map.cloud, "agent_a/map", ros::Time::now());
+  std::vector<sensor_msgs::PointCloud2> bad_clouds(5, cloud);
+  bad_clouds[0].data.resize(cloud.data.size() - 5);                       // data size vs fields
+  std::vector<float> nan(3 * map.cloud.cols(), NAN);                      // only NaN points
+  std::memcpy(bad_clouds[1].data.data(), nan.data(), bad_clouds[1].data.size());
+  bad_clouds[2].header.frame_id = "agent_b/map";                          // another agent's frame
+  bad_clouds[3].fields[0].datatype = sensor_msgs::PointField::INT32;      // x not a float
+  bad_clouds[4].is_bigendian = true;
+  for (const auto& c : bad_clouds) clouds_["agent_a"].publish(c);
+  // (one topic after the other: messages on two connections may arrive in any order)
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "messages_rejected", std::to_string(rejected_a + 5)))
+      << diagnostics.value("agent agent_a", "messages_rejected");
+  const pcr_pro::Keyframe kf = keyframeToMsg(map.keyframes[0], map.camera, "agent_a/map", ros::Time::now(), true);
+  std::vector<pcr_pro::Keyframe> bad_keyframes(7, kf);
+  bad_keyframes[0].image.encoding = "yuv422";                              // unsupported encoding
+  bad_keyframes[1].camera_info.width = 320;                                // image size vs CameraInfo
+  std::fill(bad_keyframes[2].camera_info.K.begin(), bad_keyframes[2].camera_info.K.end(), 0.0);  // zero intrinsics
+  bad_keyframes[3].scale = 0.0;                                            // degenerate pose
+  bad_keyframes[4].camera_info.K[0] += 10.0;                               // not the agent's camera
+  bad_keyframes[4].camera_info.P[0] += 10.0;
+  bad_keyframes[5].depth.width = 320;                                      // depth size vs image
+  bad_keyframes[5].depth.step = 640;
+  bad_keyframes[5].depth.data.resize(640 * 480);
+  bad_keyframes[6].pose.position.x = NAN;                                  // NaN pose
+  for (const auto& k : bad_keyframes) keyframes_["agent_a"].publish(k);
+  pcr_pro::Keyframe distorted = keyframeToMsg(map.keyframes[0], map.camera, "agent_b/map", ros::Time::now());
+  distorted.camera_info.D[0] = 0.2;
+  keyframes_["agent_b"].publish(distorted);
+
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "messages_rejected", std::to_string(rejected_a + 12)))
+      << diagnostics.value("agent agent_a", "messages_rejected");
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_rejected", std::to_string(rejected_b + 1)));
+  EXPECT_NE(diagnostics.value("agent agent_a", "last_rejection").find("agent_a/keyframes: pose.position"),
+            std::string::npos)
+      << diagnostics.value("agent agent_a", "last_rejection");
+  // Throttled per agent and topic: agent_a's bursts give at most one warning per topic, and agent_b's
+  // one bad keyframe gets its own warning naming the topic, the agent and the field.
+  EXPECT_TRUE(warnings.waitFor({"/agent_b/keyframes", "agent_b", "camera_info.D", "rectified"}));
+  EXPECT_LE(warnings.matching({"/agent_a/keyframes"}).size(), 1u);
+  EXPECT_LE(warnings.matching({"/agent_a/cloud"}).size(), 1u);
+  // After the throttle period the next rejection is warned about, with the count of the quiet ones.
+  ros::WallDuration(5.5).sleep();
+  bad_keyframes[3].scale = -1.0;
+  keyframes_["agent_a"].publish(bad_keyframes[3]);
+  EXPECT_TRUE(warnings.waitFor({"/agent_a/keyframes", "agent_a", "scale", "more like it"}))
+      << "no throttled summary warning for agent_a/keyframes";
+  bad_clouds[0].header.stamp = ros::Time::now();
+  clouds_["agent_a"].publish(bad_clouds[0]);
+  EXPECT_TRUE(warnings.waitFor({"/agent_a/cloud", "agent_a", "cloud: width * height * point_step", "data size",
+                                "more like it"}));
+
+  // Earlier data is kept, and the node still merges it to the truth.
+  EXPECT_EQ(diagnostics.value("agent agent_a", "keyframe_ids"), ids_a);
+  EXPECT_EQ(diagnostics.value("agent agent_b", "keyframe_ids"), ids_b);
+  EXPECT_EQ(diagnostics.value("agent agent_a", "cloud_points"), points_a);
+  EXPECT_EQ(diagnostics.value("agent agent_b", "cloud_points"), points_b);
+  const Response r = callMerge();
+  ASSERT_EQ(r.status, Response::OK) << r.message;
+  expectNear(edgeFromMsg(r.edge).target_source, truth(), "after the bad messages");
+}
+
+TEST_F(Live, ConcurrentAndRepeatedMergeCallsAreAllAnsweredWhileDataArrives) {
+  DiagnosticsWatcher diagnostics(nh_);
+  publishAgent("agent_a");
+  publishAgent("agent_b");
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "keyframe_ids", "3, 5"));
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", "1, 2, 4"));
+  ASSERT_TRUE(ros::service::waitForService(kService, ros::Duration(30.0)));
+  const long ok_before = number(diagnostics, "merge", "merges_ok");
+
+  // agent_b keeps re-sending its keyframes and cloud while the calls run.
+  std::atomic<bool> stop{false};
+  std::atomic<int> resent{0};
+  std::thread feeder([&] {
+    while (!stop) {
+      publishAgent("agent_b");
+      ++resent;
+      ros::WallDuration(0.2).sleep();
+    }
+  });
+  struct Call {
+    Call(std::string s, std::string t, long skf, long tkf, std::uint8_t e)
+        : source(std::move(s)), target(std::move(t)), source_kf(skf), target_kf(tkf), expected(e) {}
+    std::string source, target;
+    long source_kf, target_kf;
+    std::uint8_t expected;
+    bool answered = false;
+    pcr_pro::MergeMaps srv;
+  };
+  std::vector<Call> calls = {{"", "", -1, -1, Response::OK},
+                             {"agent_b", "agent_a", 3, 2, Response::OK},
+                             {"agent_q", "", -1, -1, Response::UNKNOWN_AGENT},
+                             {"agent_b", "agent_a", 77, -1, Response::UNKNOWN_KEYFRAME},
+                             {"", "", -1, -1, Response::OK}};
+  std::vector<std::thread> callers;
+  for (Call& c : calls) {
+    callers.emplace_back([&c] {
+      c.srv.request.source_agent = c.source;
+      c.srv.request.target_agent = c.target;
+      c.srv.request.source_keyframe = c.source_kf;
+      c.srv.request.target_keyframe = c.target_kf;
+      c.answered = ros::service::call(kService, c.srv);
+    });
+  }
+  for (std::thread& t : callers) t.join();
+  stop = true;
+  feeder.join();
+  EXPECT_GT(resent.load(), 0);
+  int ok = 0;
+  for (const Call& c : calls) {
+    const std::string what = "call (" + c.source + ", " + c.target + ", " + std::to_string(c.source_kf) + ")";
+    ASSERT_TRUE(c.answered) << what << " not answered";
+    EXPECT_EQ(c.srv.response.status, c.expected) << what << ": " << c.srv.response.status_name << ": "
+                                                 << c.srv.response.message;
+    if (c.srv.response.status == Response::OK) {
+      ++ok;
+      expectNear(edgeFromMsg(c.srv.response.edge).target_source, truth(), what + " while data arrives");
+    }
+  }
+  EXPECT_TRUE(diagnostics.waitFor("merge", "merges_ok", std::to_string(ok_before + ok)));
+  EXPECT_EQ(callMerge("agent_x").status, Response::UNKNOWN_AGENT);  // still serving
+}
+
+TEST_F(Live, ShippedNodeConfigStatesTheStructDefaults) {
+  // config/merge_node.yaml, loaded by merge_node.launch into the node's namespace, read back with
+  // the node's own loader: its values must be the option struct's defaults (written once).
+  const NodeOptions shipped = loadNodeOptions(ros::NodeHandle("/merge_node"));
+  const NodeOptions d;
+  ASSERT_EQ(shipped.agents.size(), d.agents.size());
+  for (std::size_t i = 0; i < d.agents.size(); ++i) {
+    EXPECT_EQ(shipped.agents[i].name, d.agents[i].name);
+    EXPECT_EQ(shipped.agents[i].frame_id, d.agents[i].frame_id);
+  }
+  EXPECT_EQ(shipped.input, d.input);
+  EXPECT_EQ(shipped.queue_size, d.queue_size);
+  EXPECT_EQ(shipped.publish_tf, d.publish_tf);
+  EXPECT_EQ(shipped.lsd.scaled_depth_var_th, d.lsd.scaled_depth_var_th);
+  EXPECT_EQ(shipped.lsd.abs_depth_var_th, d.lsd.abs_depth_var_th);
+  EXPECT_EQ(shipped.lsd.min_near_support, d.lsd.min_near_support);
+  EXPECT_EQ(shipped.lsd.sparsify_factor, d.lsd.sparsify_factor);
+  EXPECT_EQ(shipped.limits.max_keyframes, d.limits.max_keyframes);
+  EXPECT_EQ(shipped.limits.max_cloud_points, d.limits.max_cloud_points);
+  // ... and the file states every limit explicitly (not just by leaving it out).
+  int value = 0;
+  EXPECT_TRUE(ros::param::get("/merge_node/max_keyframes_per_agent", value));
+  EXPECT_TRUE(ros::param::get("/merge_node/max_cloud_points_per_agent", value));
+}
+
 TEST(BadConfig, TheNodeRefusesToStartAndNamesTheKey) {
   const auto run = [](const std::string& name, const std::string& key_in_message) {
     std::string out;
@@ -367,6 +650,10 @@ TEST(BadConfig, TheNodeRefusesToStartAndNamesTheKey) {
   run("bad_type", "~input");
   ros::param::set("/bad_file/merge_config", "/nonexistent/merge.yaml");
   run("bad_file", "~merge_config");
+  ros::param::set("/bad_keyframe_cap/max_keyframes_per_agent", 0);
+  run("bad_keyframe_cap", "~max_keyframes_per_agent");
+  ros::param::set("/bad_cloud_cap/max_cloud_points_per_agent", std::string("many"));
+  run("bad_cloud_cap", "~max_cloud_points_per_agent");
 }
 
 }  // namespace

@@ -56,7 +56,9 @@ struct LsdPoints {
 
 /**
  * @brief Applies the LSD viewer's filters to every pixel with a positive inverse depth (the
- * one-pixel image border is skipped, as the viewer does) and back-projects the kept ones.
+ * one-pixel image border is skipped, as the viewer does) and back-projects the kept ones. A
+ * threshold test that is NaN (e.g. zero variance at a denormal inverse depth) fails, and points
+ * whose back-projection is not finite are skipped: every returned point is finite.
  * @param[in] keyframe decoded keyframe
  * @param[in] options filter thresholds
  */

@@ -20,6 +20,7 @@
 #include <condition_variable>
 #include <deque>
 #include <future>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -45,12 +46,19 @@ class MergeNode {
   MergeNode& operator=(const MergeNode&) = delete;
 
  private:
+  // One warning per (agent, topic, kind) and period; the others are counted and reported with the next.
+  struct Throttle {
+    ros::WallTime last;
+    std::size_t suppressed = 0;
+  };
   struct Agent {
     AgentOptions options;
     std::mutex mutex;  // guards everything below
     AgentStore store;
     std::size_t received = 0, rejected = 0, graph_updates = 0;
+    std::size_t keyframes_dropped = 0, clouds_voxelised = 0, points_dropped_nonfinite = 0;
     std::string last_rejection;
+    std::map<std::string, Throttle> throttles;
     std::vector<ros::Subscriber> subscribers;
   };
   struct MergeState {
@@ -64,6 +72,10 @@ class MergeNode {
   void onLsdKeyframe(Agent* agent, const lsd_slam_viewer::keyframeMsg::ConstPtr& msg);
   void onLsdGraph(Agent* agent, const lsd_slam_viewer::keyframeGraphMsg::ConstPtr& msg);
   void reject(Agent* agent, const std::string& topic, const std::string& what);
+  /// ROS_WARN of "<topic>: <what>" at most once per kWarnPeriod per (agent, key); call with agent->mutex held.
+  void warnThrottled(Agent* agent, const std::string& key, const std::string& text);
+  void noteDropped(Agent* agent, const std::string& topic, long added, const std::vector<long>& dropped);
+  void noteCloudCap(Agent* agent, const std::string& what, const CloudCap& cap);
 
   bool onMergeService(pcr_pro::MergeMaps::Request& request, pcr_pro::MergeMaps::Response& response);
   pcr_pro::MergeMaps::Response merge(const pcr_pro::MergeMaps::Request& request);

@@ -31,6 +31,15 @@
 namespace pcr_pro {
 namespace ros_bridge {
 
+// --- text from messages -----------------------------------------------------------------------
+
+/**
+ * @brief A string taken from a message (an encoding, a frame id, an agent name) made safe to quote
+ * in a one-line log or error message: bytes outside printable ASCII become "\xNN", and a string
+ * longer than max_length is cut there with "...".
+ */
+std::string printable(const std::string& text, std::size_t max_length = 64);
+
 // --- camera and poses -------------------------------------------------------------------------
 
 /**
@@ -43,7 +52,7 @@ PinholeCamera cameraFromMsg(const sensor_msgs::CameraInfo& msg);
 sensor_msgs::CameraInfo cameraToMsg(const PinholeCamera& camera);
 
 /// @return (scale, R(orientation), position). @throw InputError on a zero / non-finite
-/// quaternion, non-finite position or scale <= 0
+/// quaternion, a non-finite position or one with a component beyond 1e9, or a scale outside [1e-9, 1e9]
 Sim3 sim3FromPose(const geometry_msgs::Pose& pose, double scale);
 /// @return the rigid part of a similarity as a pose (position = t, orientation = R)
 geometry_msgs::Pose poseFromSim3(const Sim3& sim3);
@@ -51,7 +60,8 @@ geometry_msgs::Pose poseFromSim3(const Sim3& sim3);
 // --- images -----------------------------------------------------------------------------------
 
 /// @return a CV_8UC1 grey copy of mono8 / rgb8 / bgr8 / rgba8 / bgra8 images.
-/// @throw InputError on other encodings, zero size, step < width * pixel size or data size != step * height
+/// @throw InputError on other encodings, zero size, a side beyond 100000 px, step < width * pixel size or
+/// data size != step * height
 cv::Mat greyImageFromMsg(const sensor_msgs::Image& msg, const std::string& field = "image");
 /// @return a mono8 image message of a CV_8UC1 image
 sensor_msgs::Image greyImageToMsg(const cv::Mat& image);
@@ -83,7 +93,7 @@ pcr_pro::Keyframe keyframeToMsg(const MapKeyframe& keyframe, const PinholeCamera
 /**
  * @brief The x, y, z fields (FLOAT32 or FLOAT64) of a point cloud; points with a non-finite
  * coordinate are dropped.
- * @throw InputError when width * height * point_step != data.size(), row_step != width *
+ * @throw InputError when width * height * point_step != data.size() (computed without overflow), row_step != width *
  *   point_step, a field x / y / z is missing, of another type, or outside point_step, or the
  *   data is big-endian
  */
@@ -128,7 +138,8 @@ geometry_msgs::TransformStamped rigidTransformToMsg(const Sim3& target_source, c
 /**
  * @brief Sophus Sim3 as LSD-SLAM serialises it: [s*qx, s*qy, s*qz, s*qw, tx, ty, tz], the scale
  * being the norm of the quaternion part.
- * @throw InputError when non-finite or the quaternion part is (nearly) zero
+ * @throw InputError when non-finite, the quaternion part (scale) is (nearly) zero or outside [1e-9, 1e9], or a
+ *   translation component is beyond 1e9
  */
 Sim3 sim3FromLsd(const float* cam_to_world);
 /// @return the 7 floats of a similarity in LSD-SLAM's layout

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "pcr_pro/core/merge_pipeline.h"
+#include "pcr_pro/ros/agent_store.h"
 #include "pcr_pro/ros/lsd_keyframe.h"
 
 namespace pcr_pro {
@@ -49,12 +50,15 @@ struct NodeOptions {
   std::string icp_config;
   /// `~lsd/...`: LSD viewer filters of LSD-SLAM keyframe points.
   LsdFilterOptions lsd;
+  /// `~max_keyframes_per_agent`, `~max_cloud_points_per_agent`: memory bounds of each agent's store.
+  StoreLimits limits;
   /// The pipeline configuration read from merge_config / icp_config.
   MergeOptions merge;
 };
 
 /// @throw InputError "~key: what" for the first invalid option (agents: at least two, unique
-/// valid relative names; frame ids non-empty, unique, no leading slash; queue_size >= 1; lsd filters)
+/// valid relative names; frame ids non-empty, unique, no leading slash; queue_size >= 1; lsd filters;
+/// store limits)
 void validate(const NodeOptions& options);
 
 /**
