@@ -139,8 +139,8 @@ FeatureMatches matchFeatures(const KeyframeFeatures& a, const KeyframeFeatures& 
                      std::to_string(desc_b.cols) + ")");
   }
 
-  // With the symmetric check the result does not depend on the direction of the k-NN search,
-  // so the smaller descriptor set queries a FLANN index of the larger one (fewer queries).
+  // With the symmetric check on, the smaller descriptor set queries a FLANN index of the larger
+  // one (fewer queries); the ratio test then applies from the smaller side.
   const bool swap = options.symmetric && desc_a.rows > desc_b.rows;
   std::vector<cv::DMatch> good = swap ? ratioAndMutual(desc_b, desc_a, options) : ratioAndMutual(desc_a, desc_b, options);
   if (swap) {

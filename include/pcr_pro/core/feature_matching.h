@@ -95,8 +95,9 @@ KeyframeFeatures extractFeatures(const cv::Mat& gray8, const FeatureMatchingOpti
  * @brief Matches the features of two keyframes: FLANN k-NN (k = 2) from a to b, Lowe's ratio
  * test, then (when options.symmetric) the mutual-best check: the exact nearest neighbour in a of
  * each b descriptor that some a descriptor chose must be that a descriptor. With the symmetric
- * check on, the smaller of the two descriptor sets is the query side (the result does not
- * depend on the direction beyond FLANN's approximation), for speed.
+ * check on, the smaller of the two descriptor sets is the query side, for speed: the ratio test
+ * is then applied from that side (mutual matches do not depend on the direction, the ratio
+ * test does).
  *
  * Each keypoint of a and of b appears in at most one match when the symmetric check is on.
  * Returns no match (never throws for this reason) when either side has fewer than 2 keypoints
