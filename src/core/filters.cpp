@@ -1,8 +1,11 @@
 #include "pcr_pro/core/filters.h"
 
 #include <algorithm>
+#include <array>
+#include <cstdint>
 #include <cmath>
 #include <random>
+#include <string>
 #include <unordered_map>
 
 #include "pcr_pro/core/kdtree.h"
@@ -82,15 +85,31 @@ Cloud voxelGridFilter(const Cloud& cloud, const VoxelGridOptions& o) {
     int count = 0;
     Eigen::Index first = 0;
   };
-  std::unordered_map<uint64_t, Cell> cells;
-  cells.reserve(static_cast<std::size_t>(cloud.cols()));
+  if (!cloud.allFinite()) throw InputError("voxel_grid: the cloud has non-finite points");
   const Eigen::Vector3d origin = cloud.rowwise().minCoeff();
   const double inv = 1.0 / o.leaf_size;
+  // Integer voxel indices must be exact and castable: refuse a leaf so small for this cloud that
+  // they pass 2^52 (beyond that a double no longer holds every integer, and past 2^63 the cast
+  // would be undefined).
+  const double extent = (cloud.rowwise().maxCoeff() - origin).maxCoeff();
+  if (!(extent * inv < 4503599627370496.0)) {  // 2^52
+    throw InputError("voxel_grid.leaf_size " + std::to_string(o.leaf_size) + " is too small for a cloud " +
+                     std::to_string(extent) + " across (more than 2^52 voxels)");
+  }
+  using Key = std::array<int64_t, 3>;
+  struct KeyHash {
+    std::size_t operator()(const Key& k) const {
+      uint64_t h = static_cast<uint64_t>(k[0]) * 0x9E3779B97F4A7C15ull;
+      h ^= static_cast<uint64_t>(k[1]) + 0x632BE59BD9B4E019ull + (h << 6) + (h >> 2);
+      h ^= static_cast<uint64_t>(k[2]) + 0x85EBCA77C2B2AE63ull + (h << 6) + (h >> 2);
+      return static_cast<std::size_t>(h);
+    }
+  };
+  std::unordered_map<Key, Cell, KeyHash> cells;
+  cells.reserve(static_cast<std::size_t>(cloud.cols()));
   for (Eigen::Index i = 0; i < cloud.cols(); ++i) {
     const Eigen::Vector3d v = ((cloud.col(i) - origin) * inv).array().floor();
-    // 21 bits per axis; clouds more than 2M voxels across wrap, which only merges far cells.
-    const uint64_t key = (static_cast<uint64_t>(v.x()) & 0x1fffff) | ((static_cast<uint64_t>(v.y()) & 0x1fffff) << 21) |
-                         ((static_cast<uint64_t>(v.z()) & 0x1fffff) << 42);
+    const Key key{static_cast<int64_t>(v.x()), static_cast<int64_t>(v.y()), static_cast<int64_t>(v.z())};
     Cell& c = cells[key];
     if (c.count == 0) c.first = i;
     c.sum += cloud.col(i);

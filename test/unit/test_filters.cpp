@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include "pcr_pro/core/filters.h"
 #include "pcr_pro/core/scale_detection.h"
 #include "test_helpers.h"
@@ -38,6 +40,26 @@ TEST(Filters, VoxelGridLeavesOnePointPerOccupiedVoxel) {
   }
   o.leaf_size = 0.0;
   EXPECT_EQ(voxelGridFilter(c, o).cols(), c.cols());
+}
+
+TEST(Filters, VoxelGridRefusesALeafTooSmallForTheCloudAndKeepsFarCellsApart) {
+  Cloud c(3, 4);
+  c << 0.0, 1.0, 2.0, 3.0,  //
+      0.0, 0.5, 1.0, 1.5,   //
+      0.0, -1.0, -2.0, -3.0;
+  VoxelGridOptions o;
+  o.leaf_size = 1e-30;  // 3e30 voxels across: the indices cannot be integers
+  EXPECT_THROW(voxelGridFilter(c, o), InputError);
+  // 3e9 voxels across (beyond 2^31 per axis): the four points keep four cells, none wraps.
+  o.leaf_size = 1e-9;
+  EXPECT_EQ(voxelGridFilter(c, o).cols(), 4);
+  // Points 2^21 voxels apart on every axis used to share a cell (21-bit wrapped keys).
+  Cloud w(3, 2);
+  w << 0.0, 2097152.5, 0.0, 2097152.5, 0.0, 2097152.5;
+  o.leaf_size = 1.0;
+  EXPECT_EQ(voxelGridFilter(w, o).cols(), 2);
+  c(1, 2) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(voxelGridFilter(c, o), InputError);
 }
 
 TEST(Filters, OutlierRemovalDropsIsolatedPoints) {
