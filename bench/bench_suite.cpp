@@ -92,6 +92,8 @@ void writeRows(std::FILE* f, const std::vector<Row>& rows) {
 struct SweepConfig {
   std::vector<double> ratios, rolls, sparsities, peer_sparsities;
   std::vector<std::string> variants;
+  std::vector<double> noise_levels;  // σ of the added cloud noise, fraction of each cloud's extent
+  int noise_seeds = 1;
 };
 
 const char* kOurs = "pcr_pro (full)";
@@ -287,6 +289,78 @@ void sweep(Output& out, const SweepConfig& sc, std::FILE* headline) {
                  q(sc_, 2).c_str(), median(ms));
   }
   std::fprintf(md, "\nA run without a transform counts as `fail` (180°, infinite translation).\n\n");
+
+  // Cloud noise: Gaussian noise on every coordinate of both map clouds (σ = a fraction of each
+  // cloud's robust extent), full density, first variant, scale ratio 1 (the bundle's own 2.5),
+  // no roll; several noise draws per level.
+  if (!sc.noise_levels.empty()) {
+    const std::string dir = kData + "/bundles/" + sc.variants.front();
+    const BundleTruth truth = loadBundleTruth(dir + "/truth.yaml");
+    const AgentMap target_full = loadBundle(dir + "/" + truth.target_agent);
+    const AgentMap source_full = loadBundle(dir + "/" + truth.source_agent);
+    const double extent = robustExtent(target_full.cloud, 0.05).size;
+    const double source_extent = robustExtent(source_full.cloud, 0.05).size;
+    std::vector<Row> noise_rows;
+    for (double level : sc.noise_levels) {
+      for (int seed = 0; seed < sc.noise_seeds; ++seed) {
+        std::mt19937 rng(303 + seed);
+        std::normal_distribution<double> g(0.0, 1.0);
+        AgentMap target = target_full, source = source_full;
+        for (Eigen::Index i = 0; i < target.cloud.cols(); ++i) {
+          target.cloud.col(i) += level * extent * Eigen::Vector3d(g(rng), g(rng), g(rng));
+        }
+        for (Eigen::Index i = 0; i < source.cloud.cols(); ++i) {
+          source.cloud.col(i) += level * source_extent * Eigen::Vector3d(g(rng), g(rng), g(rng));
+        }
+        double t0 = nowMs();
+        const MergeResult mr = mergeMaps(source, target, MergeRequest(), defaults);
+        Row r = fromReport(mr.report, truth.target_source, extent, nowMs() - t0);
+        r.method = kOurs;
+        r.sparsity = level;  // the noise level, in this table
+        noise_rows.push_back(r);
+        RegistrationOptions reg = defaults.registration;
+        reg.icp.estimate_scale = true;
+        t0 = nowMs();
+        Row c = fromReport(registerClouds(source.cloud, target.cloud, std::nullopt, reg), truth.target_source, extent,
+                           nowMs() - t0);
+        c.method = kNoKeyframe;
+        c.sparsity = level;
+        noise_rows.push_back(c);
+        std::fprintf(stderr, "sweep noise %g seed %d: %s %s\n", level, seed, r.status.c_str(), r.ok ? "success" : "miss");
+      }
+    }
+    std::fprintf(md, "#### Success rate vs cloud noise\n\nGaussian noise on every coordinate of both map clouds, σ "
+                     "as a fraction of each cloud's extent (%.2f m for the target), full density, bundle `%s` at its "
+                     "own scale ratio, no roll, %d noise draw(s) per level. Cells: successes / runs, median "
+                     "translation error [m], median scale error [%%].\n\n| method |",
+                 extent, sc.variants.front().c_str(), sc.noise_seeds);
+    for (double level : sc.noise_levels) std::fprintf(md, " σ = %g %% |", 100 * level);
+    std::fprintf(md, "\n|---|");
+    for (std::size_t i = 0; i < sc.noise_levels.size(); ++i) std::fprintf(md, "---|");
+    std::fprintf(md, "\n");
+    for (const char* m : {kOurs, kNoKeyframe}) {
+      std::fprintf(md, "| %s |", m);
+      for (double level : sc.noise_levels) {
+        int ok = 0, n = 0;
+        std::vector<double> tr, sc_;
+        for (const Row& r : noise_rows) {
+          if (r.method != m || r.sparsity != level) continue;
+          ++n;
+          ok += r.ok;
+          tr.push_back(r.err.translation);
+          sc_.push_back(100 * r.err.scale_rel);
+        }
+        const double mt = median(tr), ms = median(sc_);
+        std::fprintf(md, " %d / %d; %s m; %s %% |", ok, n, mt > 1e6 ? "fail" : fmt(mt, 3).c_str(),
+                     ms > 1e6 ? "fail" : fmt(ms, 2).c_str());
+      }
+      std::fprintf(md, "\n");
+    }
+    std::fprintf(md, "\n");
+    std::FILE* ncsv = out.open("sweep_noise.csv");
+    writeRows(ncsv, noise_rows);  // the sparsity column holds the noise level here
+    std::fclose(ncsv);
+  }
 
   // Where ours applies: the map clouds keep at least kApplies of their points. At 10 % (~2.5k /
   // 1.4k points) the ICP error on these maps reaches ~0.7° / 16 cm / 1.2 %, past the thresholds.
@@ -695,12 +769,15 @@ int main(int argc, char** argv) {
       sc.sparsities = {1.0, 0.3};
       sc.peer_sparsities = {1.0};
       sc.variants = {"depth"};
+      sc.noise_levels = {0.003};
     } else {
       sc.ratios = {0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0};
       sc.rolls = {0.0, 45.0, 90.0};
       sc.sparsities = {1.0, 0.3, 0.1, 0.03};
       sc.peer_sparsities = {1.0, 0.3};
       sc.variants = {"depth", "nodepth"};
+      sc.noise_levels = {0.0, 0.001, 0.003, 0.01};
+      sc.noise_seeds = 3;
     }
     double t0 = nowMs();
     if (want("timing")) timing(out, self, quick ? std::vector<int>{10000, 70000} : std::vector<int>{10000, 20000, 35000, 70000, 140000},
