@@ -13,6 +13,7 @@
 
 #include <cstdio>
 #include <map>
+#include <numeric>
 #include <set>
 #include <sstream>
 
@@ -24,6 +25,10 @@
 #include "pcr_pro/core/covariance.h"
 #include "pcr_pro/core/icp.h"
 #include "pcr_pro/core/merge_pipeline.h"
+#include "pcr_pro/core/scale_estimation.h"
+#include "pcr_pro/core/relative_pose.h"
+#include "pcr_pro/core/keyframe_depth.h"
+#include "pcr_pro/core/feature_matching.h"
 #include "pcr_pro/core/scale_detection.h"
 
 using namespace pcr_pro;
@@ -93,7 +98,8 @@ struct SweepConfig {
   std::vector<double> ratios, rolls, sparsities, peer_sparsities;
   std::vector<std::string> variants;
   std::vector<double> noise_levels;  // σ of the added cloud noise, fraction of each cloud's extent
-  int noise_seeds = 1;
+  std::vector<double> outlier_fractions;  // wrong matches / all matches fed to the keyframe front end
+  int noise_seeds = 1;                    // draws per noise level and per outlier fraction
 };
 
 const char* kOurs = "pcr_pro (full)";
@@ -360,6 +366,144 @@ void sweep(Output& out, const SweepConfig& sc, std::FILE* headline) {
     std::FILE* ncsv = out.open("sweep_noise.csv");
     writeRows(ncsv, noise_rows);  // the sparsity column holds the noise level here
     std::fclose(ncsv);
+  }
+
+  // Outlier matches: the keyframe front end of mergeMaps, stage by stage on the keyframe pair
+  // it picks on the clean data, with wrong matches (random keypoint pairs) added to the SIFT
+  // matches so that they make the given fraction of all matches; then the similarity ICP from
+  // the resulting guess. Full density, first variant, the bundle's own scale ratio.
+  if (!sc.outlier_fractions.empty()) {
+    const std::string dir = kData + "/bundles/" + sc.variants.front();
+    const BundleTruth truth = loadBundleTruth(dir + "/truth.yaml");
+    const AgentMap target = loadBundle(dir + "/" + truth.target_agent);
+    const AgentMap source = loadBundle(dir + "/" + truth.source_agent);
+    const double extent = robustExtent(target.cloud, 0.05).size;
+    const MergeResult clean = mergeMaps(source, target, MergeRequest(), defaults);
+    const MapKeyframe* kf_s = nullptr;
+    const MapKeyframe* kf_t = nullptr;
+    for (const MapKeyframe& k : source.keyframes) {
+      if (clean.report.source_keyframe && k.id == *clean.report.source_keyframe) kf_s = &k;
+    }
+    for (const MapKeyframe& k : target.keyframes) {
+      if (clean.report.target_keyframe && k.id == *clean.report.target_keyframe) kf_t = &k;
+    }
+    std::vector<Row> outlier_rows;
+    std::size_t clean_matches = 0;
+    if (kf_s && kf_t) {
+      const KeyframeFeatures fs = extractFeatures(kf_s->image, defaults.matching);
+      const KeyframeFeatures ft = extractFeatures(kf_t->image, defaults.matching);
+      const FeatureMatches good = matchFeatures(ft, fs, defaults.matching);
+      clean_matches = good.size();
+      const KeyframeDepth depth_s(*kf_s, source.camera, source.cloud, defaults.keyframe_depth);
+      const KeyframeDepth depth_t(*kf_t, target.camera, target.cloud, defaults.keyframe_depth);
+      const double focal = 0.5 * (source.camera.focal() + target.camera.focal());
+      for (double fraction : sc.outlier_fractions) {
+        for (int seed = 0; seed < sc.noise_seeds; ++seed) {
+          std::mt19937 rng(404 + seed);
+          std::uniform_int_distribution<std::size_t> pick_t(0, ft.keypoints.size() - 1), pick_s(0, fs.keypoints.size() - 1);
+          const auto n_good = good.size();
+          const auto n_bad = static_cast<std::size_t>(std::lround(fraction / (1.0 - fraction) * static_cast<double>(n_good)));
+          std::vector<Eigen::Vector3d> bt, bs;
+          std::vector<Eigen::Vector2d> px_t, px_s;
+          for (std::size_t k = 0; k < n_good + n_bad; ++k) {
+            Eigen::Vector2d a, b;
+            if (k < n_good) {
+              a = good.pixels_a[k];
+              b = good.pixels_b[k];
+            } else {
+              const cv::Point2f& pa = ft.keypoints[pick_t(rng)].pt;
+              const cv::Point2f& pb = fs.keypoints[pick_s(rng)].pt;
+              a = Eigen::Vector2d(pa.x, pa.y);
+              b = Eigen::Vector2d(pb.x, pb.y);
+            }
+            px_t.push_back(a);
+            px_s.push_back(b);
+            bt.push_back(target.camera.bearing(a.x(), a.y()));
+            bs.push_back(source.camera.bearing(b.x(), b.y()));
+          }
+          // Shuffle so that the wrong matches are not all at the end.
+          std::vector<std::size_t> perm(px_t.size());
+          std::iota(perm.begin(), perm.end(), 0);
+          std::shuffle(perm.begin(), perm.end(), rng);
+          std::vector<Eigen::Vector3d> bt2, bs2;
+          std::vector<Eigen::Vector2d> pt2, ps2;
+          for (std::size_t k : perm) {
+            bt2.push_back(bt[k]);
+            bs2.push_back(bs[k]);
+            pt2.push_back(px_t[k]);
+            ps2.push_back(px_s[k]);
+          }
+          const double t0 = nowMs();
+          Row r;
+          r.method = kOurs;
+          r.sparsity = fraction;  // the outlier fraction, in this table
+          const RelativePoseResult pose = estimateRelativePose(bt2, bs2, focal, defaults.relative_pose);
+          std::vector<Eigen::Vector3d> ps, pt;
+          for (int k : pose.inliers) {
+            Eigen::Vector3d a, b;
+            const auto ku = static_cast<std::size_t>(k);
+            if (depth_t.pointAt(pt2[ku].x(), pt2[ku].y(), &a) && depth_s.pointAt(ps2[ku].x(), ps2[ku].y(), &b)) {
+              pt.push_back(a);
+              ps.push_back(b);
+            }
+          }
+          const ScaleEstimate scale = pose.status == Status::kOk
+                                          ? estimateScale(ps, pt, pose.rotation, pose.translation_direction,
+                                                          defaults.scale_estimation)
+                                          : ScaleEstimate();
+          if (pose.status != Status::kOk || scale.status != Status::kOk) {
+            r.status = statusName(pose.status != Status::kOk ? pose.status : scale.status);
+            r.err = Errors{180.0, 1e9, 1e9};
+            r.ms = nowMs() - t0;
+          } else {
+            const Sim3 keyframe_sim(scale.scale, pose.rotation, scale.lambda * pose.translation_direction);
+            const Sim3 cam_t(1.0, kf_t->pose.rotation(), kf_t->pose.translation());
+            const Sim3 cam_s(1.0, kf_s->pose.rotation(), kf_s->pose.translation());
+            RegistrationOptions reg = defaults.registration;
+            reg.icp.estimate_scale = defaults.merge.refine_scale;
+            const RegistrationReport rep =
+                registerClouds(source.cloud, target.cloud, cam_t * keyframe_sim * cam_s.inverse(), reg);
+            r = fromReport(rep, truth.target_source, extent, nowMs() - t0);
+            r.method = kOurs;
+            r.sparsity = fraction;
+          }
+          outlier_rows.push_back(r);
+          std::fprintf(stderr, "sweep outliers %g seed %d: %s %s\n", fraction, seed, r.status.c_str(),
+                       r.ok ? "success" : "miss");
+        }
+      }
+    }
+    std::fprintf(md, "#### Success rate vs outlier matches\n\nThe keyframe front end (relative pose RANSAC, "
+                     "keyframe depth, Kalman-filter scale) run stage by stage on the keyframe pair picked on the "
+                     "clean data (%zu SIFT matches), with random keypoint pairs added until they make the given "
+                     "fraction of all matches, then the similarity ICP from the resulting guess (the merge gates are not applied). Bundle `%s`, full "
+                     "density, %d draw(s) per fraction. Cells: successes / runs, median rotation [deg], translation "
+                     "[m] and scale [%%] errors.\n\n| method |",
+                 clean_matches,
+                 sc.variants.front().c_str(), sc.noise_seeds);
+    for (double f : sc.outlier_fractions) std::fprintf(md, " %g %% outliers |", 100 * f);
+    std::fprintf(md, "\n|---|");
+    for (std::size_t i = 0; i < sc.outlier_fractions.size(); ++i) std::fprintf(md, "---|");
+    std::fprintf(md, "\n| %s |", kOurs);
+    for (double f : sc.outlier_fractions) {
+      int ok = 0, n = 0;
+      std::vector<double> rot, tr, sc_;
+      for (const Row& r : outlier_rows) {
+        if (r.sparsity != f) continue;
+        ++n;
+        ok += r.ok;
+        rot.push_back(r.err.rotation_deg);
+        tr.push_back(r.err.translation);
+        sc_.push_back(100 * r.err.scale_rel);
+      }
+      const double mt = median(tr);
+      std::fprintf(md, " %d / %d; %s°; %s m; %s %% |", ok, n, mt > 1e6 ? "fail" : fmt(median(rot), 2).c_str(),
+                   mt > 1e6 ? "fail" : fmt(mt, 3).c_str(), mt > 1e6 ? "fail" : fmt(median(sc_), 2).c_str());
+    }
+    std::fprintf(md, "\n\n");
+    std::FILE* ocsv = out.open("sweep_outliers.csv");
+    writeRows(ocsv, outlier_rows);  // the sparsity column holds the outlier fraction here
+    std::fclose(ocsv);
   }
 
   // Where ours applies: the map clouds keep at least kApplies of their points. At 10 % (~2.5k /
@@ -770,6 +914,7 @@ int main(int argc, char** argv) {
       sc.peer_sparsities = {1.0};
       sc.variants = {"depth"};
       sc.noise_levels = {0.003};
+      sc.outlier_fractions = {0.5};
     } else {
       sc.ratios = {0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0};
       sc.rolls = {0.0, 45.0, 90.0};
@@ -777,6 +922,7 @@ int main(int argc, char** argv) {
       sc.peer_sparsities = {1.0, 0.3};
       sc.variants = {"depth", "nodepth"};
       sc.noise_levels = {0.0, 0.001, 0.003, 0.01};
+      sc.outlier_fractions = {0.0, 0.3, 0.5, 0.7};
       sc.noise_seeds = 3;
     }
     double t0 = nowMs();
