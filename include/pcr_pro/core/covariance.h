@@ -24,8 +24,8 @@
  *   The halves are drawn from a random sample of at most calibration_max_points matches, not
  *   from all of them. κ̄ depends on that sample size: large halves of a dense cloud under-predict
  *   the full registration's error (ANEES 1.43 at 10k points with 4000), small ones over-predict
- *   (0.8 at 600). The default 800 was chosen with the Monte-Carlo of docs/BENCHMARKS.md (ANEES
- *   0.88–1.13 for 2k–10k points over three seeds at 1 cm noise). Limitation: a bias that both
+ *   (0.8 at 600). The default 800 was chosen with the Monte-Carlo of docs/BENCHMARKS.md run
+ *   over three seeds and 80 trials each (ANEES 0.88–1.13 for 2k–10k points at 1 cm noise). Limitation: a bias that both
  *   halves share (noise close to the point spacing, with trimming and noisy normals) is not seen
  *   by a split; at 3 cm noise on 10k points in a 4 m room the calibrated ANEES is about 5.
  */

@@ -23,7 +23,8 @@ struct CropOptions {
   bool keep_lower = true;      ///< keep the points with the lowest coordinates (else the highest)
 };
 
-/// Voxel grid: one point (the centroid) per occupied voxel.
+/// Voxel grid: one point (the centroid) per occupied voxel. voxelGridFilter() throws InputError
+/// for a cloud with non-finite points or a leaf giving more than 2^52 voxels across the cloud.
 struct VoxelGridOptions {
   double leaf_size = 0.0;  ///< voxel edge [cloud units]; 0 disables the filter
 };
