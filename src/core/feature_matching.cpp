@@ -167,4 +167,49 @@ FeatureMatches matchFeatures(const KeyframeFeatures& a, const KeyframeFeatures& 
   return result;
 }
 
+std::vector<std::vector<int>> keyframePairVotes(const std::vector<const KeyframeFeatures*>& sources,
+                                                const std::vector<const KeyframeFeatures*>& targets,
+                                                const FeatureMatchingOptions& options) {
+  validate(options);
+  std::vector<std::vector<int>> votes(sources.size(), std::vector<int>(targets.size(), 0));
+  std::vector<cv::Mat> parts;
+  std::vector<int> owner;
+  int length = -1;
+  for (std::size_t t = 0; t < targets.size(); ++t) {
+    const cv::Mat d = usableDescriptors(*targets[t], "target");
+    if (d.empty()) continue;
+    if (length >= 0 && d.cols != length) throw InputError("keyframePairVotes: descriptor lengths differ");
+    length = d.cols;
+    parts.push_back(d);
+    owner.insert(owner.end(), static_cast<std::size_t>(d.rows), static_cast<int>(t));
+  }
+  if (owner.size() < 2) return votes;
+  cv::Mat all;
+  cv::vconcat(parts, all);
+  cv::FlannBasedMatcher matcher = makeMatcher(options);
+  matcher.add(std::vector<cv::Mat>{all});
+  matcher.train();
+  for (std::size_t s = 0; s < sources.size(); ++s) {
+    const cv::Mat q = usableDescriptors(*sources[s], "source");
+    if (q.empty()) continue;
+    if (q.cols != length) throw InputError("keyframePairVotes: descriptor lengths differ");
+    std::vector<std::vector<cv::DMatch>> knn;
+    matcher.knnMatch(q, knn, 4);
+    for (const auto& m : knn) {
+      if (m.empty() || m[0].trainIdx < 0 || static_cast<std::size_t>(m[0].trainIdx) >= owner.size()) continue;
+      const int best = owner[static_cast<std::size_t>(m[0].trainIdx)];
+      bool accept = true;
+      for (std::size_t k = 1; k < m.size(); ++k) {
+        if (m[k].trainIdx < 0 || static_cast<std::size_t>(m[k].trainIdx) >= owner.size()) continue;
+        if (owner[static_cast<std::size_t>(m[k].trainIdx)] != best) {
+          accept = m[0].distance < options.ratio_test * m[k].distance;
+          break;
+        }
+      }
+      if (accept) ++votes[s][static_cast<std::size_t>(best)];
+    }
+  }
+  return votes;
+}
+
 }  // namespace pcr_pro

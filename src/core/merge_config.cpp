@@ -81,6 +81,7 @@ MergeGateOptions loadGates(const YAML::Node& node, const std::string& origin) {
   MergeGateOptions o;
   Block b(node, "merge", origin);
   b.get("refine_scale", &o.refine_scale);
+  b.get("max_candidate_pairs", &o.max_candidate_pairs);
   b.get("overlap_distance_factor", &o.overlap_distance_factor);
   b.get("min_overlap", &o.min_overlap);
   b.get("max_scale_disagreement", &o.max_scale_disagreement);
@@ -104,6 +105,7 @@ InputLimits loadLimits(const YAML::Node& node, const std::string& origin) {
 }  // namespace
 
 void validate(const MergeGateOptions& o) {
+  if (!(o.max_candidate_pairs >= 0)) throw InputError("merge.max_candidate_pairs must be >= 0");
   if (!(o.overlap_distance_factor > 0.0)) throw InputError("merge.overlap_distance_factor must be > 0");
   if (!(o.min_overlap >= 0.0 && o.min_overlap <= 1.0)) throw InputError("merge.min_overlap must be in [0, 1]");
   if (!(o.max_scale_disagreement > 0.0)) throw InputError("merge.max_scale_disagreement must be > 0");

@@ -138,15 +138,30 @@ MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const Merg
     FeatureMatches matches;  // a = target, b = source
     RelativePoseResult pose;
   };
-  std::vector<Candidate> candidates;
-  for (const auto& s : src_kfs) {
-    for (const auto& tk : tgt_kfs) {
-      Candidate c;
-      c.source = &s;
-      c.target = &tk;
-      c.matches = matchFeatures(tk.features, s.features, options.matching);
-      candidates.push_back(std::move(c));
-    }
+  // Pairs to match in full: all of them, or the max_candidate_pairs with the most votes.
+  std::vector<std::pair<std::size_t, std::size_t>> pairs;
+  for (std::size_t i = 0; i < src_kfs.size(); ++i) {
+    for (std::size_t j = 0; j < tgt_kfs.size(); ++j) pairs.emplace_back(i, j);
+  }
+  diag.keyframe_pairs = static_cast<int>(pairs.size());
+  const auto max_pairs = static_cast<std::size_t>(options.merge.max_candidate_pairs);
+  if (max_pairs > 0 && pairs.size() > max_pairs) {
+    std::vector<const KeyframeFeatures*> sf, tf;
+    for (const auto& e : src_kfs) sf.push_back(&e.features);
+    for (const auto& e : tgt_kfs) tf.push_back(&e.features);
+    const std::vector<std::vector<int>> votes = keyframePairVotes(sf, tf, options.matching);
+    std::stable_sort(pairs.begin(), pairs.end(), [&](const auto& a, const auto& b) {
+      return votes[a.first][a.second] > votes[b.first][b.second];
+    });
+    pairs.resize(max_pairs);
+  }
+  // Sequential: FLANN's randomised trees draw from std::rand().
+  std::vector<Candidate> candidates(pairs.size());
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    Candidate& c = candidates[k];
+    c.source = &src_kfs[pairs[k].first];
+    c.target = &tgt_kfs[pairs[k].second];
+    c.matches = matchFeatures(c.target->features, c.source->features, options.matching);
   }
   rep.timings.features = msSince(t);
   diag.candidate_pairs = static_cast<int>(candidates.size());

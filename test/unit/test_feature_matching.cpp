@@ -136,6 +136,32 @@ TEST(FeatureMatching, RealFramesTwoAndThree) {
   EXPECT_GE(static_cast<int>(m.size()), o.min_matches);
 }
 
+TEST(FeatureMatching, PairVotesRankTheOverlappingKeyframesFirst) {
+  // Source keyframes 3 and 5, target keyframes 1, 2, 4 and a mirrored frame 2 (the same texture,
+  // but SIFT descriptors do not match mirrored patches). Essential-matrix inliers of the real
+  // pairs (test/data/bundles/overlap_checks.yaml): 3: 2 -> 68, 4 -> 61, 1 -> 23; 5: 4 -> 143,
+  // 2 -> 35, 1 -> 18.
+  const FeatureMatchingOptions o;
+  cv::Mat mirrored;
+  cv::flip(loadGray("2.png"), mirrored, 1);
+  const KeyframeFeatures s3 = extractFeatures(loadGray("3.png"), o), s5 = extractFeatures(loadGray("5.png"), o);
+  const KeyframeFeatures t1 = extractFeatures(loadGray("1.png"), o), t2 = extractFeatures(loadGray("2.png"), o);
+  const KeyframeFeatures t4 = extractFeatures(loadGray("4.png"), o), tm = extractFeatures(mirrored, o);
+  const auto votes = keyframePairVotes({&s3, &s5}, {&t1, &t2, &t4, &tm}, o);
+  ASSERT_EQ(votes.size(), 2u);
+  ASSERT_EQ(votes[0].size(), 4u);
+  for (int s = 0; s < 2; ++s) {
+    RecordProperty("votes_" + std::to_string(s), std::to_string(votes[s][0]) + " " + std::to_string(votes[s][1]) + " " +
+                                                     std::to_string(votes[s][2]) + " " + std::to_string(votes[s][3]));
+  }
+  EXPECT_GT(std::max(votes[0][1], votes[0][2]), votes[0][0]);  // 3: frame 2 or 4 over frame 1
+  EXPECT_GT(votes[1][2], std::max(votes[1][0], votes[1][1]));  // 5: frame 4 first
+  for (int s = 0; s < 2; ++s) {
+    EXPECT_LT(votes[s][3], std::max(votes[s][1], votes[s][2]) / 2) << "source " << s;  // the mirror is not a match
+  }
+  EXPECT_TRUE(keyframePairVotes({&s3}, {}, o)[0].empty());
+}
+
 TEST(FeatureMatching, BlackAndEmptyImagesGiveNoMatches) {
   const FeatureMatchingOptions o;
   const cv::Mat black = cv::Mat::zeros(480, 640, CV_8UC1);

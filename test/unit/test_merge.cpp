@@ -109,6 +109,24 @@ TEST(Merge, SharedWorldCloudsAreRegisteredToTheirExactTruth) {
   EXPECT_LT(e.translation, 0.5 * guess.translation);  // the ICP refines the keyframe guess
 }
 
+TEST(Merge, VotePreselectionKeepsTheBestPair) {
+  // 3 x 2 keyframes = 6 pairs; matching only the 2 with most descriptor votes must still find
+  // the pair that the full search picks.
+  const std::string dir = test::dataPath("bundles/depth");
+  const AgentMap target = loadBundle(dir + "/agent_a"), source = loadBundle(dir + "/agent_b");
+  const MergeResult all = mergeMaps(source, target, MergeRequest(), MergeOptions());
+  MergeOptions two;
+  two.merge.max_candidate_pairs = 2;
+  const MergeResult few = mergeMaps(source, target, MergeRequest(), two);
+  ASSERT_EQ(all.report.status, Status::kOk) << all.report.message;
+  ASSERT_EQ(few.report.status, Status::kOk) << few.report.message;
+  EXPECT_EQ(all.diagnostics.candidate_pairs, 6);
+  EXPECT_EQ(few.diagnostics.candidate_pairs, 2);
+  EXPECT_EQ(few.diagnostics.keyframe_pairs, 6);
+  EXPECT_EQ(few.report.source_keyframe, all.report.source_keyframe);
+  EXPECT_EQ(few.report.target_keyframe, all.report.target_keyframe);
+}
+
 TEST(Merge, NonOverlappingMapsAreRefused) {
   const std::string dir = test::dataPath("bundles/nooverlap");
   ASSERT_FALSE(loadBundleTruth(dir + "/truth.yaml").overlap);
@@ -145,10 +163,12 @@ TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
   EXPECT_EQ(shipped.scale_estimation.gating_chi2, d.scale_estimation.gating_chi2);
   EXPECT_EQ(shipped.merge.min_overlap, d.merge.min_overlap);
   EXPECT_EQ(shipped.merge.refine_scale, d.merge.refine_scale);
+  EXPECT_EQ(shipped.merge.max_candidate_pairs, d.merge.max_candidate_pairs);
   EXPECT_EQ(shipped.registration.icp.trim_ratio, d.registration.icp.trim_ratio);
   EXPECT_THROW(parseMergeConfig("relative_pose: {algorithm: FOO}\n", "x.yaml"), InputError);
   EXPECT_THROW(parseMergeConfig("matching: {ratio_test: 2}\n", "x.yaml"), InputError);
   EXPECT_THROW(parseMergeConfig("merge: {min_overlap: -1}\n", "x.yaml"), InputError);
+  EXPECT_THROW(parseMergeConfig("merge: {max_candidate_pairs: -1}\n", "x.yaml"), InputError);
 }
 
 // --- the pcr_pro_merge command line

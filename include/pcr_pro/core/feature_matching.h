@@ -115,4 +115,20 @@ KeyframeFeatures extractFeatures(const cv::Mat& gray8, const FeatureMatchingOpti
 FeatureMatches matchFeatures(const KeyframeFeatures& a, const KeyframeFeatures& b,
                              const FeatureMatchingOptions& options);
 
+/**
+ * @brief Cheap keyframe-pair scores for choosing which pairs to match in full: one FLANN index
+ * over the descriptors of every keyframe in `targets`; each descriptor of each keyframe in
+ * `sources` votes for the target keyframe of its nearest descriptor when that neighbour passes
+ * the ratio test against the nearest descriptor of any other target keyframe (among the 4
+ * nearest; a descriptor whose 4 nearest all lie in one keyframe votes for it).
+ * @param[in] sources features of the source keyframes
+ * @param[in] targets features of the target keyframes
+ * @param[in] options matching options (flann_trees, flann_checks, ratio_test; validated here)
+ * @return votes[s][t] for source keyframe s and target keyframe t [descriptors]
+ * @throw InputError as matchFeatures()
+ */
+std::vector<std::vector<int>> keyframePairVotes(const std::vector<const KeyframeFeatures*>& sources,
+                                                const std::vector<const KeyframeFeatures*>& targets,
+                                                const FeatureMatchingOptions& options);
+
 }  // namespace pcr_pro

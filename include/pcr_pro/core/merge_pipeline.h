@@ -25,6 +25,11 @@ namespace pcr_pro {
 struct MergeGateOptions {
   /// Estimate the scale in the ICP refinement too (similarity ICP from the Kalman scale).
   bool refine_scale = true;
+  /// When no keyframe ids are given and there are more keyframe pairs than this, only this many
+  /// pairs, those with the most descriptor votes (keyframePairVotes()), get the full matching
+  /// and relative pose [pairs], >= 0; 0 = every pair (cost grows with the product of the
+  /// keyframe counts: 50 x 50 keyframes are 2500 pairs).
+  int max_candidate_pairs = 10;
   /// Overlap check: a source point overlaps when its nearest target neighbour, after the
   /// merge, is closer than this many times the target's median point spacing [-], > 0.
   double overlap_distance_factor = 3.0;
@@ -71,7 +76,8 @@ struct MergeRequest {
 
 /// Diagnostics of the keyframe stages, beside the contract report.
 struct MergeDiagnostics {
-  int candidate_pairs = 0;         ///< keyframe pairs tried
+  int candidate_pairs = 0;         ///< keyframe pairs matched in full and tried
+  int keyframe_pairs = 0;          ///< keyframe pairs there were (before the vote preselection)
   int feature_matches = 0;         ///< good SIFT matches of the chosen pair
   int relative_pose_inliers = 0;   ///< OpenGV inliers of the chosen pair
   int depth_matches = 0;           ///< inliers with depth on both sides
