@@ -13,7 +13,6 @@
 
 #include <cstdio>
 #include <map>
-#include <numeric>
 #include <set>
 #include <sstream>
 
@@ -25,9 +24,6 @@
 #include "pcr_pro/core/covariance.h"
 #include "pcr_pro/core/icp.h"
 #include "pcr_pro/core/merge_pipeline.h"
-#include "pcr_pro/core/scale_estimation.h"
-#include "pcr_pro/core/relative_pose.h"
-#include "pcr_pro/core/keyframe_depth.h"
 #include "pcr_pro/core/feature_matching.h"
 #include "pcr_pro/core/scale_detection.h"
 
@@ -300,12 +296,13 @@ void sweep(Output& out, const SweepConfig& sc, std::FILE* headline) {
   // Cloud noise: Gaussian noise on every coordinate of both map clouds (σ = a fraction of each
   // cloud's robust extent), full density, first variant, scale ratio 1 (the bundle's own 2.5),
   // no roll; several noise draws per level.
+  // The first bundle, loaded once for the noise and outlier tables below.
+  const std::string first_dir = kData + "/bundles/" + sc.variants.front();
+  const BundleTruth truth = loadBundleTruth(first_dir + "/truth.yaml");
+  const AgentMap target_full = loadBundle(first_dir + "/" + truth.target_agent);
+  const AgentMap source_full = loadBundle(first_dir + "/" + truth.source_agent);
+  const double extent = robustExtent(target_full.cloud, 0.05).size;
   if (!sc.noise_levels.empty()) {
-    const std::string dir = kData + "/bundles/" + sc.variants.front();
-    const BundleTruth truth = loadBundleTruth(dir + "/truth.yaml");
-    const AgentMap target_full = loadBundle(dir + "/" + truth.target_agent);
-    const AgentMap source_full = loadBundle(dir + "/" + truth.source_agent);
-    const double extent = robustExtent(target_full.cloud, 0.05).size;
     const double source_extent = robustExtent(source_full.cloud, 0.05).size;
     std::vector<Row> noise_rows;
     for (double level : sc.noise_levels) {
@@ -374,11 +371,8 @@ void sweep(Output& out, const SweepConfig& sc, std::FILE* headline) {
   // matches so that they make the given fraction of all matches; then the similarity ICP from
   // the resulting guess. Full density, first variant, the bundle's own scale ratio.
   if (!sc.outlier_fractions.empty()) {
-    const std::string dir = kData + "/bundles/" + sc.variants.front();
-    const BundleTruth truth = loadBundleTruth(dir + "/truth.yaml");
-    const AgentMap target = loadBundle(dir + "/" + truth.target_agent);
-    const AgentMap source = loadBundle(dir + "/" + truth.source_agent);
-    const double extent = robustExtent(target.cloud, 0.05).size;
+    const AgentMap& target = target_full;
+    const AgentMap& source = source_full;
     const MergeResult clean = mergeMaps(source, target, MergeRequest(), defaults);
     const MapKeyframe* kf_s = nullptr;
     const MapKeyframe* kf_t = nullptr;
@@ -395,75 +389,41 @@ void sweep(Output& out, const SweepConfig& sc, std::FILE* headline) {
       const KeyframeFeatures ft = extractFeatures(kf_t->image, defaults.matching);
       const FeatureMatches good = matchFeatures(ft, fs, defaults.matching);
       clean_matches = good.size();
-      const KeyframeDepth depth_s(*kf_s, source.camera, source.cloud, defaults.keyframe_depth);
-      const KeyframeDepth depth_t(*kf_t, target.camera, target.cloud, defaults.keyframe_depth);
-      const double focal = 0.5 * (source.camera.focal() + target.camera.focal());
       for (double fraction : sc.outlier_fractions) {
         for (int seed = 0; seed < sc.noise_seeds; ++seed) {
           std::mt19937 rng(404 + seed);
           std::uniform_int_distribution<std::size_t> pick_t(0, ft.keypoints.size() - 1), pick_s(0, fs.keypoints.size() - 1);
           const auto n_good = good.size();
           const auto n_bad = static_cast<std::size_t>(std::lround(fraction / (1.0 - fraction) * static_cast<double>(n_good)));
-          std::vector<Eigen::Vector3d> bt, bs;
-          std::vector<Eigen::Vector2d> px_t, px_s;
-          for (std::size_t k = 0; k < n_good + n_bad; ++k) {
-            Eigen::Vector2d a, b;
-            if (k < n_good) {
-              a = good.pixels_a[k];
-              b = good.pixels_b[k];
-            } else {
-              const cv::Point2f& pa = ft.keypoints[pick_t(rng)].pt;
-              const cv::Point2f& pb = fs.keypoints[pick_s(rng)].pt;
-              a = Eigen::Vector2d(pa.x, pa.y);
-              b = Eigen::Vector2d(pb.x, pb.y);
-            }
-            px_t.push_back(a);
-            px_s.push_back(b);
-            bt.push_back(target.camera.bearing(a.x(), a.y()));
-            bs.push_back(source.camera.bearing(b.x(), b.y()));
+          std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> pixel_pairs;  // (target, source)
+          for (std::size_t k = 0; k < n_good; ++k) pixel_pairs.emplace_back(good.pixels_a[k], good.pixels_b[k]);
+          for (std::size_t k = 0; k < n_bad; ++k) {
+            const cv::Point2f& pa = ft.keypoints[pick_t(rng)].pt;
+            const cv::Point2f& pb = fs.keypoints[pick_s(rng)].pt;
+            pixel_pairs.emplace_back(Eigen::Vector2d(pa.x, pa.y), Eigen::Vector2d(pb.x, pb.y));
           }
-          // Shuffle so that the wrong matches are not all at the end.
-          std::vector<std::size_t> perm(px_t.size());
-          std::iota(perm.begin(), perm.end(), 0);
-          std::shuffle(perm.begin(), perm.end(), rng);
-          std::vector<Eigen::Vector3d> bt2, bs2;
-          std::vector<Eigen::Vector2d> pt2, ps2;
-          for (std::size_t k : perm) {
-            bt2.push_back(bt[k]);
-            bs2.push_back(bs[k]);
-            pt2.push_back(px_t[k]);
-            ps2.push_back(px_s[k]);
+          std::shuffle(pixel_pairs.begin(), pixel_pairs.end(), rng);  // wrong matches not all at the end
+          FeatureMatches mixed;
+          for (const auto& [a, b] : pixel_pairs) {
+            mixed.pixels_a.push_back(a);
+            mixed.pixels_b.push_back(b);
           }
           const double t0 = nowMs();
           Row r;
           r.method = kOurs;
           r.sparsity = fraction;  // the outlier fraction, in this table
-          const RelativePoseResult pose = estimateRelativePose(bt2, bs2, focal, defaults.relative_pose);
-          std::vector<Eigen::Vector3d> ps, pt;
-          for (int k : pose.inliers) {
-            Eigen::Vector3d a, b;
-            const auto ku = static_cast<std::size_t>(k);
-            if (depth_t.pointAt(pt2[ku].x(), pt2[ku].y(), &a) && depth_s.pointAt(ps2[ku].x(), ps2[ku].y(), &b)) {
-              pt.push_back(a);
-              ps.push_back(b);
-            }
-          }
-          const ScaleEstimate scale = pose.status == Status::kOk
-                                          ? estimateScale(ps, pt, pose.rotation, pose.translation_direction,
-                                                          defaults.scale_estimation)
-                                          : ScaleEstimate();
-          if (pose.status != Status::kOk || scale.status != Status::kOk) {
-            r.status = statusName(pose.status != Status::kOk ? pose.status : scale.status);
+          const RelativePoseResult pose = keyframePairPose(mixed, target.camera, source.camera, defaults.relative_pose);
+          const KeyframeGuess guess = pose.status == Status::kOk
+                                          ? keyframeGuess(source, *kf_s, target, *kf_t, mixed, pose, defaults)
+                                          : KeyframeGuess();
+          if (pose.status != Status::kOk || guess.scale.status != Status::kOk) {
+            r.status = statusName(pose.status != Status::kOk ? pose.status : guess.scale.status);
             r.err = Errors{180.0, 1e9, 1e9};
             r.ms = nowMs() - t0;
           } else {
-            const Sim3 keyframe_sim(scale.scale, pose.rotation, scale.lambda * pose.translation_direction);
-            const Sim3 cam_t(1.0, kf_t->pose.rotation(), kf_t->pose.translation());
-            const Sim3 cam_s(1.0, kf_s->pose.rotation(), kf_s->pose.translation());
             RegistrationOptions reg = defaults.registration;
             reg.icp.estimate_scale = defaults.merge.refine_scale;
-            const RegistrationReport rep =
-                registerClouds(source.cloud, target.cloud, cam_t * keyframe_sim * cam_s.inverse(), reg);
+            const RegistrationReport rep = registerClouds(source.cloud, target.cloud, guess.initial, reg);
             r = fromReport(rep, truth.target_source, extent, nowMs() - t0);
             r.method = kOurs;
             r.sparsity = fraction;

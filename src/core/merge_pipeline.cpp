@@ -99,6 +99,47 @@ double overlapFraction(const Cloud& moved_source, const KdTree& target_tree, dou
 
 }  // namespace
 
+RelativePoseResult keyframePairPose(const FeatureMatches& matches, const PinholeCamera& target_camera,
+                                    const PinholeCamera& source_camera, const RelativePoseOptions& options) {
+  std::vector<Eigen::Vector3d> bt, bs;
+  bt.reserve(matches.pixels_a.size());
+  bs.reserve(matches.pixels_a.size());
+  for (std::size_t k = 0; k < matches.pixels_a.size(); ++k) {
+    bt.push_back(target_camera.bearing(matches.pixels_a[k].x(), matches.pixels_a[k].y()));
+    bs.push_back(source_camera.bearing(matches.pixels_b[k].x(), matches.pixels_b[k].y()));
+  }
+  const double focal = 0.5 * (source_camera.focal() + target_camera.focal());
+  return estimateRelativePose(bt, bs, focal, options);
+}
+
+KeyframeGuess keyframeGuess(const AgentMap& source, const MapKeyframe& source_keyframe, const AgentMap& target,
+                            const MapKeyframe& target_keyframe, const FeatureMatches& matches,
+                            const RelativePoseResult& pose, const MergeOptions& options) {
+  KeyframeGuess g;
+  const KeyframeDepth depth_s(source_keyframe, source.camera, source.cloud, options.keyframe_depth);
+  const KeyframeDepth depth_t(target_keyframe, target.camera, target.cloud, options.keyframe_depth);
+  std::vector<Eigen::Vector3d> ps, pt;
+  for (int k : pose.inliers) {
+    Eigen::Vector3d a, b;
+    const auto ku = static_cast<std::size_t>(k);
+    if (depth_t.pointAt(matches.pixels_a[ku].x(), matches.pixels_a[ku].y(), &a) &&
+        depth_s.pointAt(matches.pixels_b[ku].x(), matches.pixels_b[ku].y(), &b)) {
+      pt.push_back(a);
+      ps.push_back(b);
+    }
+  }
+  g.depth_matches = static_cast<int>(ps.size());
+  g.scale = estimateScale(ps, pt, pose.rotation, pose.translation_direction, options.scale_estimation);
+  if (g.scale.status != Status::kOk) return g;
+  // Target camera -> target map, keyframe similarity, source map -> source camera. Camera
+  // points are in map units (P = pose scale * p_cam).
+  const Sim3 keyframe_sim(g.scale.scale, pose.rotation, g.scale.lambda * pose.translation_direction);
+  const Sim3 cam_t(1.0, target_keyframe.pose.rotation(), target_keyframe.pose.translation());
+  const Sim3 cam_s(1.0, source_keyframe.pose.rotation(), source_keyframe.pose.translation());
+  g.initial = cam_t * keyframe_sim * cam_s.inverse();
+  return g;
+}
+
 MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const MergeRequest& request,
                       const MergeOptions& options) {
   validate(options);
@@ -168,7 +209,6 @@ MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const Merg
 
   // --- relative pose per pair with enough matches; keep the most verified inliers
   t = Clock::now();
-  const double focal = 0.5 * (source.camera.focal() + target.camera.focal());
   Candidate* best = nullptr;
   Candidate* most_matches = nullptr;
   for (Candidate& c : candidates) {
@@ -179,12 +219,7 @@ MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const Merg
                        std::to_string(options.matching.min_matches);
       continue;
     }
-    std::vector<Eigen::Vector3d> bt, bs;
-    for (std::size_t k = 0; k < c.matches.size(); ++k) {
-      bt.push_back(target.camera.bearing(c.matches.pixels_a[k].x(), c.matches.pixels_a[k].y()));
-      bs.push_back(source.camera.bearing(c.matches.pixels_b[k].x(), c.matches.pixels_b[k].y()));
-    }
-    c.pose = estimateRelativePose(bt, bs, focal, options.relative_pose);
+    c.pose = keyframePairPose(c.matches, target.camera, source.camera, options.relative_pose);
     if (c.pose.status == Status::kOk && (!best || c.pose.inlier_count > best->pose.inlier_count)) best = &c;
   }
   rep.timings.relative_pose = msSince(t);
@@ -206,38 +241,21 @@ MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const Merg
   diag.feature_matches = static_cast<int>(best->matches.size());
   diag.relative_pose_inliers = best->pose.inlier_count;
 
-  // --- keyframe depth and the Kalman-filter scale
+  // --- keyframe depth, the Kalman-filter scale and the initial map-to-map similarity
   t = Clock::now();
-  const KeyframeDepth depth_s(kf_s, source.camera, source.cloud, options.keyframe_depth);
-  const KeyframeDepth depth_t(kf_t, target.camera, target.cloud, options.keyframe_depth);
-  std::vector<Eigen::Vector3d> ps, pt;
-  for (int k : best->pose.inliers) {
-    Eigen::Vector3d a, b;
-    const auto ku = static_cast<std::size_t>(k);
-    if (depth_t.pointAt(best->matches.pixels_a[ku].x(), best->matches.pixels_a[ku].y(), &a) &&
-        depth_s.pointAt(best->matches.pixels_b[ku].x(), best->matches.pixels_b[ku].y(), &b)) {
-      pt.push_back(a);
-      ps.push_back(b);
-    }
-  }
-  diag.depth_matches = static_cast<int>(ps.size());
-  const ScaleEstimate scale =
-      estimateScale(ps, pt, best->pose.rotation, best->pose.translation_direction, options.scale_estimation);
+  const KeyframeGuess guess = keyframeGuess(source, kf_s, target, kf_t, best->matches, best->pose, options);
+  const ScaleEstimate& scale = guess.scale;
   rep.timings.scale = msSince(t);
+  diag.depth_matches = guess.depth_matches;
   diag.kalman_scale = scale.scale;
   diag.kalman_scale_stddev = scale.scale_stddev;
   diag.kalman_inliers = scale.inliers;
   if (scale.status != Status::kOk) {
-    return finish(scale.status, "scale from " + std::to_string(ps.size()) + " inlier matches with depth on both sides (" +
+    return finish(scale.status, "scale from " + std::to_string(guess.depth_matches) +
+                                    " inlier matches with depth on both sides (" +
                                     std::to_string(best->pose.inlier_count) + " inliers): " + scale.message);
   }
-
-  // --- initial map-to-map similarity: target camera -> target map, keyframe similarity,
-  // source map -> source camera. Camera points are in map units (P = pose scale * p_cam).
-  const Sim3 keyframe_sim(scale.scale, best->pose.rotation, scale.lambda * best->pose.translation_direction);
-  const Sim3 cam_t(1.0, kf_t.pose.rotation(), kf_t.pose.translation());
-  const Sim3 cam_s(1.0, kf_s.pose.rotation(), kf_s.pose.translation());
-  diag.initial = cam_t * keyframe_sim * cam_s.inverse();
+  diag.initial = guess.initial;
 
   // --- scale detection, filters, ICP with scale refinement, covariance
   // The filters run once here: registration and the overlap gate share the filtered clouds.

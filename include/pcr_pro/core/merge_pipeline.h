@@ -95,6 +95,32 @@ struct MergeResult {
 };
 
 /**
+ * @brief Relative pose of one keyframe pair (the pipeline's relative pose stage): bearings of
+ * the matched pixels (pixels_a in the target keyframe, pixels_b in the source keyframe), RANSAC
+ * threshold from the mean focal length of the two cameras.
+ * @throw InputError as estimateRelativePose()
+ */
+RelativePoseResult keyframePairPose(const FeatureMatches& matches, const PinholeCamera& target_camera,
+                                    const PinholeCamera& source_camera, const RelativePoseOptions& options);
+
+/// The keyframe-based guess of a verified keyframe pair (keyframeGuess()).
+struct KeyframeGuess {
+  ScaleEstimate scale;    ///< Kalman-filter scale (and translation magnitude) with its status
+  int depth_matches = 0;  ///< relative pose inliers with depth on both sides
+  Sim3 initial;           ///< S_target_source; meaningful when scale.status is kOk
+};
+
+/**
+ * @brief The pipeline's keyframe depth, Kalman-filter scale and initial map-to-map similarity
+ * for one keyframe pair and its relative pose.
+ * @param[in] matches the pair's matches (pixels_a target, pixels_b source); pose.inliers index them
+ * @throw InputError as the stages it runs
+ */
+KeyframeGuess keyframeGuess(const AgentMap& source, const MapKeyframe& source_keyframe, const AgentMap& target,
+                            const MapKeyframe& target_keyframe, const FeatureMatches& matches,
+                            const RelativePoseResult& pose, const MergeOptions& options);
+
+/**
  * @brief Merges the source agent's map into the target agent's.
  * @param[in] source source agent (camera, keyframes, map cloud)
  * @param[in] target target agent
