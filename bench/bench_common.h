@@ -19,9 +19,9 @@
 #include <string>
 #include <vector>
 
-#include "pcr_pro/core/filters.h"
-#include "pcr_pro/core/map_types.h"
-#include "pcr_pro/core/sim3.h"
+#include "pcr_pro/registration/filters.h"
+#include "pcr_pro/geometry/map_types.h"
+#include "pcr_pro/geometry/sim3.h"
 
 namespace pcr_pro {
 namespace bench {

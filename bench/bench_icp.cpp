@@ -13,12 +13,12 @@
 #include <string>
 #include <vector>
 
-#include "pcr_pro/core/cloud_io.h"
-#include "pcr_pro/core/covariance.h"
-#include "pcr_pro/core/icp.h"
-#include "pcr_pro/core/kdtree.h"
-#include "pcr_pro/core/normals.h"
-#include "pcr_pro/core/scale_detection.h"
+#include "pcr_pro/io/cloud_io.h"
+#include "pcr_pro/registration/covariance.h"
+#include "pcr_pro/registration/icp.h"
+#include "pcr_pro/geometry/kdtree.h"
+#include "pcr_pro/geometry/normals.h"
+#include "pcr_pro/registration/scale_detection.h"
 
 using namespace pcr_pro;
 

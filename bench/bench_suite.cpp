@@ -18,14 +18,14 @@
 
 #include "bench_common.h"
 #include "peers.h"
-#include "pcr_pro/core/bundle.h"
-#include "pcr_pro/core/cloud_io.h"
-#include "pcr_pro/core/cloud_registration.h"
-#include "pcr_pro/core/covariance.h"
-#include "pcr_pro/core/icp.h"
-#include "pcr_pro/core/merge_pipeline.h"
-#include "pcr_pro/core/feature_matching.h"
-#include "pcr_pro/core/scale_detection.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/cloud_io.h"
+#include "pcr_pro/registration/cloud_registration.h"
+#include "pcr_pro/registration/covariance.h"
+#include "pcr_pro/registration/icp.h"
+#include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/frontend/feature_matching.h"
+#include "pcr_pro/registration/scale_detection.h"
 
 using namespace pcr_pro;
 using namespace pcr_pro::bench;

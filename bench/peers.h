@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "pcr_pro/core/sim3.h"
+#include "pcr_pro/geometry/sim3.h"
 
 namespace pcr_pro {
 namespace bench {

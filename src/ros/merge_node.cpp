@@ -4,7 +4,7 @@
 #include <cstdlib>
 #include <sstream>
 
-#include "pcr_pro/core/merge_pipeline.h"
+#include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 namespace pcr_pro {

@@ -8,7 +8,7 @@
 #include <set>
 #include <sstream>
 
-#include "pcr_pro/core/config.h"
+#include "pcr_pro/registration/config.h"
 
 namespace pcr_pro {
 namespace ros_bridge {

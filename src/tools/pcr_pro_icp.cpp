@@ -2,10 +2,10 @@
 #include <iostream>
 #include <sstream>
 
-#include "pcr_pro/core/cloud_io.h"
-#include "pcr_pro/core/cloud_registration.h"
-#include "pcr_pro/core/config.h"
-#include "pcr_pro/core/merge_pipeline.h"
+#include "pcr_pro/io/cloud_io.h"
+#include "pcr_pro/registration/cloud_registration.h"
+#include "pcr_pro/registration/config.h"
+#include "pcr_pro/merge/merge_pipeline.h"
 #include "tool_common.h"
 
 namespace {

@@ -2,8 +2,8 @@
 #include <cstdlib>
 #include <iostream>
 
-#include "pcr_pro/core/bundle.h"
-#include "pcr_pro/core/merge_pipeline.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/merge/merge_pipeline.h"
 #include "tool_common.h"
 
 namespace {

@@ -5,7 +5,7 @@
 #include <fstream>
 #include <iostream>
 
-#include "pcr_pro/core/cloud_io.h"
+#include "pcr_pro/io/cloud_io.h"
 
 namespace pcr_pro {
 namespace tools {

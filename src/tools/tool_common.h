@@ -6,8 +6,8 @@
 #include <set>
 #include <string>
 
-#include "pcr_pro/core/report.h"
-#include "pcr_pro/core/types.h"
+#include "pcr_pro/io/report.h"
+#include "pcr_pro/geometry/types.h"
 
 namespace pcr_pro {
 namespace tools {

@@ -13,8 +13,8 @@
 #include <string>
 
 #include "fuzz_common.h"
-#include "pcr_pro/core/bundle.h"
-#include "pcr_pro/core/cloud_io.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/cloud_io.h"
 
 namespace {
 

@@ -10,14 +10,14 @@
 #include <cstdint>
 
 #include "fuzz_ros_common.h"
-#include "pcr_pro/ros/agent_store.h"
+#include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 namespace {
 
 // A small LSD keyframe with depth everywhere.
-pcr_pro::ros_bridge::LsdKeyframe smallKeyframe(long id) {
-  pcr_pro::ros_bridge::LsdKeyframe kf;
+pcr_pro::LsdKeyframe smallKeyframe(long id) {
+  pcr_pro::LsdKeyframe kf;
   kf.id = id;
   kf.camera = {20.0, 20.0, 4.0, 3.0, 8, 6};
   kf.idepth = cv::Mat(6, 8, CV_32FC1, cv::Scalar(0.5f));

@@ -10,7 +10,7 @@
 #include <cstdint>
 
 #include "fuzz_ros_common.h"
-#include "pcr_pro/ros/agent_store.h"
+#include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

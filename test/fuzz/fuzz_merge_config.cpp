@@ -6,7 +6,7 @@
 #include <string>
 
 #include "fuzz_common.h"
-#include "pcr_pro/core/merge_pipeline.h"
+#include "pcr_pro/merge/merge_pipeline.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace pcr_pro;

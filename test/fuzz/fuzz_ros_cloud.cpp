@@ -9,7 +9,7 @@
 #include <cstdint>
 
 #include "fuzz_ros_common.h"
-#include "pcr_pro/ros/agent_store.h"
+#include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
@@ -28,8 +28,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
                 "more points than width * height");
   fuzz::require(cloud.allFinite(), "a non-finite point was kept");
   constexpr std::int64_t kCap = 16;
-  ros_bridge::CloudCap cap;
-  const Cloud kept = ros_bridge::capCloud(cloud, kCap, &cap);
+  CloudCap cap;
+  const Cloud kept = capCloud(cloud, kCap, &cap);
   fuzz::require(kept.cols() <= std::max<Eigen::Index>(kCap, 0) && kept.cols() <= cloud.cols(), "cap not kept");
   fuzz::require(cloud.cols() == 0 || kept.cols() >= 1, "the cap removed every point");
   fuzz::require(kept.allFinite(), "the cap made a non-finite point");

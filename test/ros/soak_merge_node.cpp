@@ -32,7 +32,7 @@
 #include <thread>
 
 #include "pcr_pro/MergeMaps.h"
-#include "pcr_pro/core/bundle.h"
+#include "pcr_pro/io/bundle.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 namespace pcr_pro {

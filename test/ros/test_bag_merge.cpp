@@ -8,9 +8,9 @@
 #include <cstdlib>
 #include <map>
 
-#include "pcr_pro/core/bundle.h"
-#include "pcr_pro/core/merge_pipeline.h"
-#include "pcr_pro/ros/agent_store.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 namespace pcr_pro {

@@ -20,8 +20,8 @@
 #include <thread>
 
 #include "pcr_pro/MergeMaps.h"
-#include "pcr_pro/core/bundle.h"
-#include "pcr_pro/ros/agent_store.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
 #include "pcr_pro/ros/node_options.h"
 

@@ -6,8 +6,8 @@
 #include <cmath>
 #include <cstring>
 
-#include "pcr_pro/core/bundle.h"
-#include "pcr_pro/ros/agent_store.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
 #include "pcr_pro/ros/node_options.h"
 

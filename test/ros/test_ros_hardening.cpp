@@ -13,8 +13,8 @@
 #include <set>
 #include <typeinfo>
 
-#include "pcr_pro/core/bundle.h"
-#include "pcr_pro/ros/agent_store.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
 #include "pcr_pro/ros/node_options.h"
 

@@ -22,7 +22,7 @@
 #include <string>
 #include <vector>
 
-#include "pcr_pro/core/merge_pipeline.h"
+#include "pcr_pro/merge/merge_pipeline.h"
 
 namespace pcr_pro {
 namespace {

@@ -1,4 +1,4 @@
-// Tests of the map bundle reader (pcr_pro/core/bundle.h) on the generated two-agent bundles of
+// Tests of the map bundle reader (pcr_pro/io/bundle.h) on the generated two-agent bundles of
 // test/data/bundles (scripts/make_bundles.py) and on deliberately broken bundles.
 
 #include <gtest/gtest.h>
@@ -22,8 +22,8 @@
 #include <unordered_map>
 #include <vector>
 
-#include "pcr_pro/core/bundle.h"
-#include "pcr_pro/core/cloud_io.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/cloud_io.h"
 
 namespace fs = std::filesystem;
 

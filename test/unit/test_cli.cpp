@@ -8,7 +8,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "pcr_pro/core/cloud_io.h"
+#include "pcr_pro/io/cloud_io.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {

@@ -1,6 +1,6 @@
 #include <gtest/gtest.h>
 
-#include "pcr_pro/core/config.h"
+#include "pcr_pro/registration/config.h"
 
 namespace pcr_pro {
 namespace {

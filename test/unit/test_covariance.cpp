@@ -4,10 +4,10 @@
 
 #include <cstdio>
 
-#include "pcr_pro/core/covariance.h"
-#include "pcr_pro/core/icp.h"
-#include "pcr_pro/core/kdtree.h"
-#include "pcr_pro/core/normals.h"
+#include "pcr_pro/registration/covariance.h"
+#include "pcr_pro/registration/icp.h"
+#include "pcr_pro/geometry/kdtree.h"
+#include "pcr_pro/geometry/normals.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {

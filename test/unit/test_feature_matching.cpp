@@ -10,7 +10,7 @@
 #include <set>
 #include <string>
 
-#include "pcr_pro/core/feature_matching.h"
+#include "pcr_pro/frontend/feature_matching.h"
 
 namespace pcr_pro {
 namespace {

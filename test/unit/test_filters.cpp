@@ -2,8 +2,8 @@
 
 #include <limits>
 
-#include "pcr_pro/core/filters.h"
-#include "pcr_pro/core/scale_detection.h"
+#include "pcr_pro/registration/filters.h"
+#include "pcr_pro/registration/scale_detection.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {

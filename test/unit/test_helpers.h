@@ -9,7 +9,7 @@
 #include <sstream>
 #include <string>
 
-#include "pcr_pro/core/sim3.h"
+#include "pcr_pro/geometry/sim3.h"
 
 namespace pcr_pro {
 namespace test {

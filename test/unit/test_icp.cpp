@@ -2,8 +2,8 @@
 
 #include <cmath>
 
-#include "pcr_pro/core/cloud_io.h"
-#include "pcr_pro/core/icp.h"
+#include "pcr_pro/io/cloud_io.h"
+#include "pcr_pro/registration/icp.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {

@@ -6,7 +6,7 @@
 #include <string>
 #include <vector>
 
-#include "pcr_pro/core/keyframe_depth.h"
+#include "pcr_pro/frontend/keyframe_depth.h"
 
 namespace pcr_pro {
 namespace {

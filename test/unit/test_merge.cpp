@@ -7,8 +7,8 @@
 #include <filesystem>
 #include <fstream>
 
-#include "pcr_pro/core/bundle.h"
-#include "pcr_pro/core/merge_pipeline.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/merge/merge_pipeline.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {

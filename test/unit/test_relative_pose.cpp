@@ -14,10 +14,10 @@
 #include <utility>
 #include <vector>
 
-#include "pcr_pro/core/feature_matching.h"
-#include "pcr_pro/core/map_types.h"
-#include "pcr_pro/core/relative_pose.h"
-#include "pcr_pro/core/sim3.h"
+#include "pcr_pro/frontend/feature_matching.h"
+#include "pcr_pro/geometry/map_types.h"
+#include "pcr_pro/frontend/relative_pose.h"
+#include "pcr_pro/geometry/sim3.h"
 
 namespace pcr_pro {
 namespace {

@@ -8,8 +8,8 @@
 #include <string>
 #include <vector>
 
-#include "pcr_pro/core/scale_estimation.h"
-#include "pcr_pro/core/sim3.h"
+#include "pcr_pro/frontend/scale_estimation.h"
+#include "pcr_pro/geometry/sim3.h"
 
 namespace pcr_pro {
 namespace {

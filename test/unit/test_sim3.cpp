@@ -1,6 +1,6 @@
 #include <gtest/gtest.h>
 
-#include "pcr_pro/core/sim3.h"
+#include "pcr_pro/geometry/sim3.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {

@@ -27,7 +27,7 @@
 #include <thread>
 #include <vector>
 
-#include "pcr_pro/ros/agent_store.h"
+#include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/node_options.h"
 
 namespace pcr_pro {

@@ -22,11 +22,11 @@
 #include <utility>
 #include <vector>
 
-#include "pcr_pro/core/map_types.h"
-#include "pcr_pro/core/report.h"
-#include "pcr_pro/core/sim3.h"
-#include "pcr_pro/core/types.h"
-#include "pcr_pro/ros/lsd_keyframe.h"
+#include "pcr_pro/geometry/map_types.h"
+#include "pcr_pro/io/report.h"
+#include "pcr_pro/geometry/sim3.h"
+#include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/lsd_keyframe.h"
 
 namespace pcr_pro {
 namespace ros_bridge {

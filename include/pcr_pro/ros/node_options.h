@@ -11,9 +11,9 @@
 #include <string>
 #include <vector>
 
-#include "pcr_pro/core/merge_pipeline.h"
-#include "pcr_pro/ros/agent_store.h"
-#include "pcr_pro/ros/lsd_keyframe.h"
+#include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/merge/agent_store.h"
+#include "pcr_pro/io/lsd_keyframe.h"
 
 namespace pcr_pro {
 namespace ros_bridge {

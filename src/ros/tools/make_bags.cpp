@@ -14,7 +14,7 @@
 #include <string>
 #include <vector>
 
-#include "pcr_pro/core/bundle.h"
+#include "pcr_pro/io/bundle.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 namespace {

@@ -19,7 +19,7 @@
 #include <sstream>
 
 #include "pcr_pro/MergeMaps.h"
-#include "pcr_pro/core/bundle.h"
+#include "pcr_pro/io/bundle.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 namespace {

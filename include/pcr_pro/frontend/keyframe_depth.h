@@ -1,0 +1,107 @@
+/**
+ * @file keyframe_depth.h
+ * @brief Depth of keyframe pixels (PCR-Pro §Scale by Kalman filter): from the keyframe's depth
+ * image when it has one, otherwise from the map cloud projected into the keyframe (z-buffer).
+ *
+ * Pixel convention (OpenCV): pixel (col, row) has its centre at (u, v) = (col, row) and covers
+ * [col - 0.5, col + 0.5) x [row - 0.5, row + 0.5).
+ */
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "pcr_pro/geometry/map_types.h"
+#include "pcr_pro/geometry/types.h"
+
+namespace pcr_pro {
+
+/// Options of the keyframe depth lookup.
+struct KeyframeDepthOptions {
+  /// Radius of the lookup neighbourhood: the pixels whose centre lies within this distance of
+  /// the pixel containing the query [px], >= 0 (0 = only that pixel). A sparse projected cloud
+  /// needs a few pixels to find a depth next to a feature.
+  int neighborhood_radius_px = 2;
+  /// Depths below this are treated as unknown [camera units], > 0.
+  double min_depth = 1e-6;
+  /// Depths above this are treated as unknown [camera units], 0 = no limit, else > min_depth.
+  double max_depth = 0.0;
+  /// Largest number of map points projected when the keyframe has no depth image; a larger
+  /// cloud is subsampled to this many points spread evenly over its columns [points],
+  /// 0 = project all points.
+  int max_cloud_points_projected = 0;
+  /// Largest relative depth spread accepted inside the lookup neighbourhood [-], >= 0: the
+  /// lookup fails when (z_max - z_min) > depth_consistency * z_min over the neighbourhood's valid
+  /// pixels (a depth edge or an occlusion leaking through a sparse cloud makes the depth
+  /// ambiguous).
+  double depth_consistency = 0.05;
+};
+
+/// @throw InputError naming the option (e.g. "keyframe_depth.neighborhood_radius_px must be >= 0")
+void validate(const KeyframeDepthOptions& options);
+
+/**
+ * @brief Per-pixel depth of one keyframe, and the 3D point behind a pixel.
+ *
+ * With a depth image (MapKeyframe::depth non-empty) the image is used as is (invalid values:
+ * 0, non-finite, or outside [min_depth, max_depth]). Without one, the map cloud is transformed
+ * into the keyframe camera, p_cam = pose⁻¹(p_map) [camera units], and projected into a z-buffer
+ * that keeps the nearest depth per pixel; points behind the camera, outside the image or outside
+ * [min_depth, max_depth] are dropped.
+ *
+ * The object keeps its own copy of the depth; the keyframe and cloud may go away. Queries are
+ * const and thread-safe.
+ */
+class KeyframeDepth {
+ public:
+  /**
+   * @param[in] keyframe keyframe (pose camera -> map; depth CV_32FC1 [camera units] or empty)
+   * @param[in] camera intrinsics of the keyframe's images
+   * @param[in] map_cloud map cloud in the map frame [map units]; used only when the keyframe has
+   * no depth image (may then be empty: every lookup fails)
+   * @param[in] options lookup options
+   * @throw InputError on invalid options, an invalid camera, a pose scale that is not finite
+   * and > 0, or a depth image that is not CV_32FC1 of the camera's width x height
+   */
+  KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& camera, const Cloud& map_cloud,
+                const KeyframeDepthOptions& options = KeyframeDepthOptions());
+
+  /**
+   * @brief Depth at a pixel: the depth of the valid pixel of the neighbourhood nearest to
+   * (u, v) (ties: the smaller depth), provided the neighbourhood is depth-consistent.
+   * @param[in] u column coordinate [px]
+   * @param[in] v row coordinate [px]
+   * @param[out] depth depth along the optical axis [camera units]; may be null
+   * @return false when (u, v) is not finite or outside the image, when no valid pixel lies in the
+   * neighbourhood, or when the neighbourhood's depths spread more than depth_consistency
+   */
+  bool depthAt(double u, double v, double* depth) const;
+
+  /**
+   * @brief 3D point seen at a pixel, in the keyframe's camera frame but in map units:
+   * P = pose.scale() * z * K⁻¹ [u v 1]ᵀ with z = depthAt(u, v).
+   * @param[in] u column coordinate [px]
+   * @param[in] v row coordinate [px]
+   * @param[out] point camera-frame point [map units]; may be null
+   * @return false when depthAt() fails (see there); point is then left untouched
+   */
+  bool pointAt(double u, double v, Eigen::Vector3d* point) const;
+
+  /// @return true when the depth comes from the keyframe's depth image, false when projected
+  bool usesDepthImage() const { return uses_depth_image_; }
+  /// @return number of pixels with a valid depth
+  int validPixels() const { return valid_pixels_; }
+
+ private:
+  PinholeCamera camera_;
+  KeyframeDepthOptions options_;
+  double pose_scale_ = 1.0;
+  bool uses_depth_image_ = false;
+  int valid_pixels_ = 0;
+  /// Row-major width x height depths [camera units], 0 = unknown.
+  std::vector<float> depth_;
+  /// Pixel offsets (dx, dy) of the neighbourhood disc.
+  std::vector<Eigen::Vector2i> offsets_;
+};
+
+}  // namespace pcr_pro

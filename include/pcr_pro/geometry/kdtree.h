@@ -1,0 +1,54 @@
+/**
+ * @file kdtree.h
+ * @brief Exact nearest-neighbour search on a Cloud (nanoflann k-d tree).
+ */
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "pcr_pro/geometry/types.h"
+
+namespace pcr_pro {
+
+/**
+ * @brief A k-d tree over the columns of a cloud. The tree keeps its own copy of the points,
+ * so the cloud passed in may go away. Queries are const and thread-safe.
+ */
+class KdTree {
+ public:
+  /// @param[in] cloud points to index (may be empty; queries then find nothing)
+  explicit KdTree(const Cloud& cloud);
+  ~KdTree();
+  KdTree(const KdTree&) = delete;
+  KdTree& operator=(const KdTree&) = delete;
+
+  /// @return number of indexed points
+  Eigen::Index size() const;
+  /// @return the indexed points
+  const Cloud& points() const;
+
+  /**
+   * @brief Nearest neighbour of a query point.
+   * @param[in] query point [cloud units]
+   * @param[out] squared_distance squared distance to it [cloud units²]
+   * @return index of the nearest point, or -1 when the tree is empty
+   */
+  Eigen::Index nearest(const Eigen::Vector3d& query, double* squared_distance) const;
+
+  /**
+   * @brief k nearest neighbours, closest first.
+   * @param[in] query point
+   * @param[in] k number of neighbours wanted
+   * @param[out] indices found indices (at most k)
+   * @param[out] squared_distances matching squared distances
+   */
+  void knn(const Eigen::Vector3d& query, int k, std::vector<Eigen::Index>* indices,
+           std::vector<double>* squared_distances) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace pcr_pro

@@ -1,0 +1,32 @@
+/**
+ * @file normals.h
+ * @brief Surface normals from local PCA over k nearest neighbours.
+ */
+#pragma once
+
+#include <vector>
+
+#include "pcr_pro/geometry/kdtree.h"
+#include "pcr_pro/geometry/types.h"
+
+namespace pcr_pro {
+
+/**
+ * @brief Estimates a unit normal per point from its k nearest neighbours (smallest PCA axis).
+ * Points with fewer than 3 neighbours get a zero normal.
+ * @param[in] tree k-d tree over the cloud
+ * @param[in] k neighbours used (>= 3)
+ * @return one unit (or zero) normal per point, sign arbitrary
+ */
+Cloud estimateNormals(const KdTree& tree, int k);
+
+/**
+ * @brief Like estimateNormals(), for selected points of the tree only.
+ * @param[in] tree k-d tree over the cloud
+ * @param[in] indices points (columns of tree.points()) to estimate normals for
+ * @param[in] k neighbours used (>= 3)
+ * @return one normal per index, in the same order
+ */
+Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k);
+
+}  // namespace pcr_pro

@@ -1,0 +1,215 @@
+#include "pcr_pro/frontend/feature_matching.h"
+
+#include <Eigen/Core>
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/features2d.hpp>
+#include <opencv2/flann.hpp>
+#include <opencv2/imgproc.hpp>
+#include <string>
+
+namespace pcr_pro {
+namespace {
+
+// Rows of a descriptor matrix usable for matching: CV_32F, one row per keypoint.
+// Returns an empty matrix when the side cannot take part in k-NN matching with k = 2.
+cv::Mat usableDescriptors(const KeyframeFeatures& f, const char* side) {
+  if (f.descriptors.empty()) return cv::Mat();
+  if (f.descriptors.rows != static_cast<int>(f.keypoints.size())) {
+    throw InputError(std::string("matchFeatures: keyframe ") + side + " has " + std::to_string(f.keypoints.size()) +
+                     " keypoints but " + std::to_string(f.descriptors.rows) + " descriptor rows");
+  }
+  if (f.descriptors.rows < 2 || f.descriptors.channels() != 1) return cv::Mat();
+  if (f.descriptors.type() == CV_32F) return f.descriptors;
+  cv::Mat converted;
+  f.descriptors.convertTo(converted, CV_32F);
+  return converted;
+}
+
+cv::FlannBasedMatcher makeMatcher(const FeatureMatchingOptions& options) {
+  return cv::FlannBasedMatcher(cv::makePtr<cv::flann::KDTreeIndexParams>(options.flann_trees),
+                               cv::makePtr<cv::flann::SearchParams>(options.flann_checks));
+}
+
+// query -> train: FLANN k-NN (k = 2) with the ratio test, then (options.symmetric) the mutual
+// check: the exact nearest query descriptor of each chosen train descriptor (a few hundred
+// scans, cheaper than a second FLANN index, and exact) must be the one that chose it.
+std::vector<cv::DMatch> ratioAndMutual(const cv::Mat& query, const cv::Mat& train, const FeatureMatchingOptions& options) {
+  std::vector<std::vector<cv::DMatch>> knn;
+  makeMatcher(options).knnMatch(query, train, knn, 2);
+  std::vector<cv::DMatch> good;
+  good.reserve(knn.size());
+  for (const auto& m : knn) {
+    if (m.size() < 2) continue;
+    const cv::DMatch& best = m[0];
+    const cv::DMatch& second = m[1];
+    if (best.queryIdx < 0 || best.queryIdx >= query.rows || best.trainIdx < 0 || best.trainIdx >= train.rows) {
+      continue;
+    }
+    if (!std::isfinite(best.distance) || !std::isfinite(second.distance)) continue;
+    if (!(best.distance < options.ratio_test * second.distance)) continue;
+    good.push_back(best);
+  }
+  if (!options.symmetric) return good;
+  using RowMatrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  using ConstRows = Eigen::Map<const RowMatrix, 0, Eigen::OuterStride<>>;
+  const ConstRows eq(query.ptr<float>(), query.rows, query.cols, Eigen::OuterStride<>(query.step1()));
+  const ConstRows et(train.ptr<float>(), train.rows, train.cols, Eigen::OuterStride<>(train.step1()));
+  std::vector<int> best_query_of_train(static_cast<std::size_t>(train.rows), -1);
+  std::vector<cv::DMatch> mutual;
+  mutual.reserve(good.size());
+  for (const cv::DMatch& m : good) {
+    int& back = best_query_of_train[static_cast<std::size_t>(m.trainIdx)];
+    if (back < 0) {
+      Eigen::Index arg = 0;
+      (eq.rowwise() - et.row(m.trainIdx)).rowwise().squaredNorm().minCoeff(&arg);
+      back = static_cast<int>(arg);
+    }
+    if (back == m.queryIdx) mutual.push_back(m);
+  }
+  return mutual;
+}
+
+}  // namespace
+
+void validate(const FeatureMatchingOptions& options) {
+  if (!(options.image_scale > 0.0 && options.image_scale <= 1.0)) {
+    throw InputError("matching.image_scale must be in (0, 1]");
+  }
+  if (!(options.nfeatures >= 0)) throw InputError("matching.nfeatures must be >= 0");
+  if (!(options.n_octave_layers >= 1)) throw InputError("matching.n_octave_layers must be >= 1");
+  if (!(options.contrast_threshold > 0.0) || !std::isfinite(options.contrast_threshold)) {
+    throw InputError("matching.contrast_threshold must be a finite number > 0");
+  }
+  if (!(options.edge_threshold > 0.0) || !std::isfinite(options.edge_threshold)) {
+    throw InputError("matching.edge_threshold must be a finite number > 0");
+  }
+  if (!(options.sigma > 0.0) || !std::isfinite(options.sigma)) {
+    throw InputError("matching.sigma must be a finite number > 0");
+  }
+  if (!(options.flann_trees >= 1)) throw InputError("matching.flann_trees must be >= 1");
+  if (!(options.flann_checks >= 1)) throw InputError("matching.flann_checks must be >= 1");
+  if (!(options.ratio_test > 0.0 && options.ratio_test <= 1.0)) {
+    throw InputError("matching.ratio_test must be in (0, 1]");
+  }
+  if (!(options.min_matches >= 0)) throw InputError("matching.min_matches must be >= 0");
+}
+
+KeyframeFeatures extractFeatures(const cv::Mat& gray8, const FeatureMatchingOptions& options) {
+  validate(options);
+  KeyframeFeatures features;
+  if (gray8.empty()) return features;
+  if (gray8.type() != CV_8UC1) {
+    throw InputError("extractFeatures: image must be 8-bit single-channel (CV_8UC1), got type " +
+                     std::to_string(gray8.type()) + " with " + std::to_string(gray8.channels()) + " channel(s)");
+  }
+  cv::Ptr<cv::SIFT> sift = cv::SIFT::create(options.nfeatures, options.n_octave_layers, options.contrast_threshold,
+                                            options.edge_threshold, options.sigma);
+  if (options.image_scale < 1.0) {
+    const cv::Size size(std::max(1, cvRound(gray8.cols * options.image_scale)),
+                        std::max(1, cvRound(gray8.rows * options.image_scale)));
+    cv::Mat small;
+    cv::resize(gray8, small, size, 0.0, 0.0, cv::INTER_AREA);
+    sift->detectAndCompute(small, cv::noArray(), features.keypoints, features.descriptors);
+    // Back to full-resolution pixels: pixel centres map as (x + 0.5) * full / small - 0.5.
+    const float sx = static_cast<float>(gray8.cols) / static_cast<float>(size.width);
+    const float sy = static_cast<float>(gray8.rows) / static_cast<float>(size.height);
+    for (cv::KeyPoint& k : features.keypoints) {
+      k.pt.x = (k.pt.x + 0.5f) * sx - 0.5f;
+      k.pt.y = (k.pt.y + 0.5f) * sy - 0.5f;
+      k.size *= 0.5f * (sx + sy);
+    }
+  } else {
+    sift->detectAndCompute(gray8, cv::noArray(), features.keypoints, features.descriptors);
+  }
+  if (features.keypoints.empty()) features.descriptors.release();
+  return features;
+}
+
+FeatureMatches matchFeatures(const KeyframeFeatures& a, const KeyframeFeatures& b,
+                             const FeatureMatchingOptions& options) {
+  validate(options);
+  FeatureMatches result;
+  const cv::Mat desc_a = usableDescriptors(a, "a");
+  const cv::Mat desc_b = usableDescriptors(b, "b");
+  if (desc_a.empty() || desc_b.empty()) return result;
+  if (desc_a.cols != desc_b.cols) {
+    throw InputError("matchFeatures: descriptor lengths differ (" + std::to_string(desc_a.cols) + " vs " +
+                     std::to_string(desc_b.cols) + ")");
+  }
+
+  // With the symmetric check on, the smaller descriptor set queries a FLANN index of the larger
+  // one (fewer queries); the ratio test then applies from the smaller side.
+  const bool swap = options.symmetric && desc_a.rows > desc_b.rows;
+  std::vector<cv::DMatch> good = swap ? ratioAndMutual(desc_b, desc_a, options) : ratioAndMutual(desc_a, desc_b, options);
+  if (swap) {
+    for (cv::DMatch& m : good) std::swap(m.queryIdx, m.trainIdx);
+  }
+  // Without the symmetric check several a-keypoints may share one b-keypoint: that is kept,
+  // as in the plain ratio-test matcher.
+  std::sort(good.begin(), good.end(), [](const cv::DMatch& l, const cv::DMatch& r) { return l.distance < r.distance; });
+
+  result.pixels_a.reserve(good.size());
+  result.pixels_b.reserve(good.size());
+  result.index_a.reserve(good.size());
+  result.index_b.reserve(good.size());
+  result.distances.reserve(good.size());
+  for (const cv::DMatch& m : good) {
+    const cv::Point2f& pa = a.keypoints[static_cast<std::size_t>(m.queryIdx)].pt;
+    const cv::Point2f& pb = b.keypoints[static_cast<std::size_t>(m.trainIdx)].pt;
+    result.pixels_a.emplace_back(pa.x, pa.y);
+    result.pixels_b.emplace_back(pb.x, pb.y);
+    result.index_a.push_back(m.queryIdx);
+    result.index_b.push_back(m.trainIdx);
+    result.distances.push_back(m.distance);
+  }
+  return result;
+}
+
+std::vector<std::vector<int>> keyframePairVotes(const std::vector<const KeyframeFeatures*>& sources,
+                                                const std::vector<const KeyframeFeatures*>& targets,
+                                                const FeatureMatchingOptions& options) {
+  validate(options);
+  std::vector<std::vector<int>> votes(sources.size(), std::vector<int>(targets.size(), 0));
+  std::vector<cv::Mat> parts;
+  std::vector<int> owner;
+  int length = -1;
+  for (std::size_t t = 0; t < targets.size(); ++t) {
+    const cv::Mat d = usableDescriptors(*targets[t], "target");
+    if (d.empty()) continue;
+    if (length >= 0 && d.cols != length) throw InputError("keyframePairVotes: descriptor lengths differ");
+    length = d.cols;
+    parts.push_back(d);
+    owner.insert(owner.end(), static_cast<std::size_t>(d.rows), static_cast<int>(t));
+  }
+  if (owner.size() < 2) return votes;
+  cv::Mat all;
+  cv::vconcat(parts, all);
+  cv::FlannBasedMatcher matcher = makeMatcher(options);
+  matcher.add(std::vector<cv::Mat>{all});
+  matcher.train();
+  for (std::size_t s = 0; s < sources.size(); ++s) {
+    const cv::Mat q = usableDescriptors(*sources[s], "source");
+    if (q.empty()) continue;
+    if (q.cols != length) throw InputError("keyframePairVotes: descriptor lengths differ");
+    std::vector<std::vector<cv::DMatch>> knn;
+    matcher.knnMatch(q, knn, 4);
+    for (const auto& m : knn) {
+      if (m.empty() || m[0].trainIdx < 0 || static_cast<std::size_t>(m[0].trainIdx) >= owner.size()) continue;
+      const int best = owner[static_cast<std::size_t>(m[0].trainIdx)];
+      bool accept = true;
+      for (std::size_t k = 1; k < m.size(); ++k) {
+        if (m[k].trainIdx < 0 || static_cast<std::size_t>(m[k].trainIdx) >= owner.size()) continue;
+        if (owner[static_cast<std::size_t>(m[k].trainIdx)] != best) {
+          accept = m[0].distance < options.ratio_test * m[k].distance;
+          break;
+        }
+      }
+      if (accept) ++votes[s][static_cast<std::size_t>(best)];
+    }
+  }
+  return votes;
+}
+
+}  // namespace pcr_pro

@@ -1,0 +1,161 @@
+#include "pcr_pro/frontend/keyframe_depth.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+
+namespace pcr_pro {
+
+namespace {
+
+// Largest neighbourhood radius accepted: a larger window is no longer a "neighbourhood" and
+// would make every lookup scan a big part of the image.
+constexpr int kMaxNeighborhoodRadiusPx = 100;
+// Largest image accepted [px]: guards the depth buffer allocation against absurd camera sizes.
+constexpr long long kMaxPixels = 1LL << 28;
+
+}  // namespace
+
+void validate(const KeyframeDepthOptions& o) {
+  if (o.neighborhood_radius_px < 0) throw InputError("keyframe_depth.neighborhood_radius_px must be >= 0");
+  if (o.neighborhood_radius_px > kMaxNeighborhoodRadiusPx) {
+    throw InputError("keyframe_depth.neighborhood_radius_px must be <= " + std::to_string(kMaxNeighborhoodRadiusPx));
+  }
+  if (!(o.min_depth > 0.0 && std::isfinite(o.min_depth)))
+    throw InputError("keyframe_depth.min_depth must be finite and > 0");
+  if (!(o.max_depth == 0.0 || (o.max_depth > o.min_depth && std::isfinite(o.max_depth)))) {
+    throw InputError("keyframe_depth.max_depth must be 0 (no limit) or finite and > keyframe_depth.min_depth");
+  }
+  if (o.max_cloud_points_projected < 0) throw InputError("keyframe_depth.max_cloud_points_projected must be >= 0");
+  if (!(o.depth_consistency >= 0.0 && std::isfinite(o.depth_consistency))) {
+    throw InputError("keyframe_depth.depth_consistency must be finite and >= 0");
+  }
+}
+
+KeyframeDepth::KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& camera, const Cloud& map_cloud,
+                             const KeyframeDepthOptions& options)
+    : camera_(camera), options_(options) {
+  validate(options_);
+  if (!camera_.valid()) throw InputError("keyframe depth: invalid camera (fx, fy, width, height must be > 0)");
+  if (static_cast<long long>(camera_.width) * static_cast<long long>(camera_.height) > kMaxPixels) {
+    throw InputError("keyframe depth: camera width x height is too large");
+  }
+  const Sim3& pose = keyframe.pose;
+  pose_scale_ = pose.scale();
+  if (!(pose_scale_ > 0.0 && std::isfinite(pose_scale_))) {
+    throw InputError("keyframe " + std::to_string(keyframe.id) + ": pose scale must be finite and > 0");
+  }
+  if (!pose.rotation().allFinite() || !pose.translation().allFinite()) {
+    throw InputError("keyframe " + std::to_string(keyframe.id) + ": pose has non-finite entries");
+  }
+
+  const int width = camera_.width;
+  const int height = camera_.height;
+  const double min_depth = options_.min_depth;
+  const double max_depth = options_.max_depth > 0.0 ? options_.max_depth : std::numeric_limits<double>::infinity();
+  depth_.assign(static_cast<size_t>(width) * static_cast<size_t>(height), 0.0f);
+
+  if (!keyframe.depth.empty()) {
+    const cv::Mat& img = keyframe.depth;
+    if (img.type() != CV_32FC1) {
+      throw InputError("keyframe " + std::to_string(keyframe.id) + ": depth image must be CV_32FC1 (32-bit float)");
+    }
+    if (img.cols != width || img.rows != height) {
+      throw InputError("keyframe " + std::to_string(keyframe.id) + ": depth image is " + std::to_string(img.cols) +
+                       "x" + std::to_string(img.rows) + " but the camera is " + std::to_string(width) + "x" +
+                       std::to_string(height));
+    }
+    uses_depth_image_ = true;
+    for (int row = 0; row < height; ++row) {
+      const float* src = img.ptr<float>(row);
+      float* dst = depth_.data() + static_cast<size_t>(row) * static_cast<size_t>(width);
+      for (int col = 0; col < width; ++col) {
+        const double z = src[col];
+        if (std::isfinite(z) && z >= min_depth && z <= max_depth) dst[col] = src[col];
+      }
+    }
+  } else {
+    uses_depth_image_ = false;
+    const Sim3 map_to_camera = pose.inverse();
+    const Eigen::Index n = map_cloud.cols();
+    // Subsampling: max_points indices spread evenly over the cloud.
+    Eigen::Index count = n;
+    if (options_.max_cloud_points_projected > 0 && n > options_.max_cloud_points_projected) {
+      count = options_.max_cloud_points_projected;
+    }
+    const double step = count > 0 ? static_cast<double>(n) / static_cast<double>(count) : 1.0;
+    for (Eigen::Index k = 0; k < count; ++k) {
+      const Eigen::Index i = count == n ? k : std::min(n - 1, static_cast<Eigen::Index>(static_cast<double>(k) * step));
+      const Eigen::Vector3d p_map = map_cloud.col(i);
+      if (!p_map.allFinite()) continue;
+      const Eigen::Vector3d p_cam = map_to_camera.apply(p_map);
+      const double z = p_cam.z();
+      if (!(z >= min_depth && z <= max_depth)) continue;
+      double u = 0.0;
+      double v = 0.0;
+      if (!camera_.project(p_cam, &u, &v)) continue;
+      // Pixel (col, row) covers [col - 0.5, col + 0.5); the comparisons also reject NaN.
+      if (!(u >= -0.5 && u < width - 0.5 && v >= -0.5 && v < height - 0.5)) continue;
+      const int col = std::min(width - 1, static_cast<int>(std::floor(u + 0.5)));
+      const int row = std::min(height - 1, static_cast<int>(std::floor(v + 0.5)));
+      float& cell = depth_[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
+      const float zf = static_cast<float>(z);
+      if (!(zf > 0.0f)) continue;  // below float resolution
+      if (cell == 0.0f || zf < cell) cell = zf;
+    }
+  }
+  valid_pixels_ = static_cast<int>(std::count_if(depth_.begin(), depth_.end(), [](float z) { return z > 0.0f; }));
+
+  const int r = options_.neighborhood_radius_px;
+  for (int dy = -r; dy <= r; ++dy) {
+    for (int dx = -r; dx <= r; ++dx) {
+      if (dx * dx + dy * dy <= r * r) offsets_.emplace_back(dx, dy);
+    }
+  }
+}
+
+bool KeyframeDepth::depthAt(double u, double v, double* depth) const {
+  const int width = camera_.width;
+  const int height = camera_.height;
+  // Also false for NaN.
+  if (!(u >= -0.5 && u < width - 0.5 && v >= -0.5 && v < height - 0.5)) return false;
+  const int col0 = std::min(width - 1, static_cast<int>(std::floor(u + 0.5)));
+  const int row0 = std::min(height - 1, static_cast<int>(std::floor(v + 0.5)));
+
+  double best_d2 = std::numeric_limits<double>::infinity();
+  double best_z = 0.0;
+  double z_min = std::numeric_limits<double>::infinity();
+  double z_max = 0.0;
+  for (const Eigen::Vector2i& off : offsets_) {
+    const int col = col0 + off.x();
+    const int row = row0 + off.y();
+    if (col < 0 || col >= width || row < 0 || row >= height) continue;
+    const double z = depth_[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
+    if (!(z > 0.0)) continue;
+    z_min = std::min(z_min, z);
+    z_max = std::max(z_max, z);
+    const double du = col - u;
+    const double dv = row - v;
+    const double d2 = du * du + dv * dv;
+    if (d2 < best_d2 || (d2 == best_d2 && z < best_z)) {
+      best_d2 = d2;
+      best_z = z;
+    }
+  }
+  if (!(best_z > 0.0)) return false;
+  if (z_max - z_min > options_.depth_consistency * z_min) return false;
+  if (depth != nullptr) *depth = best_z;
+  return true;
+}
+
+bool KeyframeDepth::pointAt(double u, double v, Eigen::Vector3d* point) const {
+  double z = 0.0;
+  if (!depthAt(u, v, &z)) return false;
+  if (point != nullptr) {
+    *point = (pose_scale_ * z) * Eigen::Vector3d((u - camera_.cx) / camera_.fx, (v - camera_.cy) / camera_.fy, 1.0);
+  }
+  return true;
+}
+
+}  // namespace pcr_pro

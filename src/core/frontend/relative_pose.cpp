@@ -1,0 +1,286 @@
+#include "pcr_pro/frontend/relative_pose.h"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <exception>
+#include <memory>
+#include <opengv/relative_pose/CentralRelativeAdapter.hpp>
+#include <opengv/relative_pose/methods.hpp>
+#include <opengv/sac/Ransac.hpp>
+#include <opengv/sac_problems/relative_pose/CentralRelativePoseSacProblem.hpp>
+#include <sstream>
+
+#include "pcr_pro/geometry/sim3.h"
+
+namespace pcr_pro {
+namespace {
+
+using SacProblem = opengv::sac_problems::relative_pose::CentralRelativePoseSacProblem;
+
+// Refinement: at most this many refine / re-select rounds; stop earlier once the inliers are
+// unchanged and the rotation plus translation direction moved less than this [rad].
+constexpr int kMaxRefinementRounds = 10;
+constexpr double kRefinementConvergedRad = 1e-7;
+// A refinement round is rejected when it keeps fewer than this fraction of the inliers [-].
+constexpr double kMinKeptSupport = 0.5;
+
+SacProblem::algorithm_t toOpengv(RelativePoseAlgorithm algorithm) {
+  switch (algorithm) {
+    case RelativePoseAlgorithm::kNister:
+      return SacProblem::NISTER;
+    case RelativePoseAlgorithm::kStewenius:
+      return SacProblem::STEWENIUS;
+    case RelativePoseAlgorithm::kSevenPt:
+      return SacProblem::SEVENPT;
+    case RelativePoseAlgorithm::kEightPt:
+      return SacProblem::EIGHTPT;
+  }
+  return SacProblem::STEWENIUS;
+}
+
+bool isFinite(const Eigen::MatrixXd& m) { return m.allFinite(); }
+
+// RMS distance of unit bearings from their best-fitting plane through the origin [rad]:
+// sqrt of the smallest eigenvalue of mean(f fᵀ). Zero when all bearings lie on one image
+// line (or coincide).
+double planeSpread(const opengv::bearingVectors_t& bearings, const std::vector<int>& indices) {
+  if (indices.empty()) return 0.0;
+  Eigen::Matrix3d m = Eigen::Matrix3d::Zero();
+  for (int i : indices) {
+    const Eigen::Vector3d& f = bearings[static_cast<std::size_t>(i)];
+    m += f * f.transpose();
+  }
+  m /= static_cast<double>(indices.size());
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(m, Eigen::EigenvaluesOnly);
+  return std::sqrt(std::max(0.0, eig.eigenvalues()(0)));
+}
+
+// Checks both cameras; fills *message and returns false when degenerate.
+bool spreadOk(const opengv::bearingVectors_t& target, const opengv::bearingVectors_t& source,
+              const std::vector<int>& indices, double min_spread_rad, const char* what, std::string* message) {
+  const double spread_t = planeSpread(target, indices);
+  const double spread_s = planeSpread(source, indices);
+  if (spread_t >= min_spread_rad && spread_s >= min_spread_rad) return true;
+  std::ostringstream os;
+  os << "relative pose: degenerate " << what << " (" << indices.size()
+     << " correspondences on one image line or point; spread target " << spread_t << " rad, source " << spread_s
+     << " rad, minimum " << min_spread_rad << " rad)";
+  *message = os.str();
+  return false;
+}
+
+}  // namespace
+
+const char* relativePoseAlgorithmName(RelativePoseAlgorithm algorithm) {
+  switch (algorithm) {
+    case RelativePoseAlgorithm::kNister:
+      return "NISTER";
+    case RelativePoseAlgorithm::kStewenius:
+      return "STEWENIUS";
+    case RelativePoseAlgorithm::kSevenPt:
+      return "SEVENPT";
+    case RelativePoseAlgorithm::kEightPt:
+      return "EIGHTPT";
+  }
+  return "UNKNOWN";
+}
+
+bool parseRelativePoseAlgorithm(const std::string& name, RelativePoseAlgorithm* algorithm) {
+  std::string upper = name;
+  std::transform(upper.begin(), upper.end(), upper.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::toupper(c)); });
+  for (RelativePoseAlgorithm a : {RelativePoseAlgorithm::kNister, RelativePoseAlgorithm::kStewenius,
+                                  RelativePoseAlgorithm::kSevenPt, RelativePoseAlgorithm::kEightPt}) {
+    if (upper == relativePoseAlgorithmName(a)) {
+      if (algorithm != nullptr) *algorithm = a;
+      return true;
+    }
+  }
+  return false;
+}
+
+int relativePoseSampleSize(RelativePoseAlgorithm algorithm) {
+  switch (algorithm) {
+    case RelativePoseAlgorithm::kNister:
+    case RelativePoseAlgorithm::kStewenius:
+      return 8;
+    case RelativePoseAlgorithm::kSevenPt:
+    case RelativePoseAlgorithm::kEightPt:
+      return 9;
+  }
+  return 9;
+}
+
+void validate(const RelativePoseOptions& options) {
+  if (!parseRelativePoseAlgorithm(relativePoseAlgorithmName(options.algorithm), nullptr)) {
+    throw InputError("relative_pose.algorithm must be one of NISTER, STEWENIUS, SEVENPT, EIGHTPT");
+  }
+  if (!(options.pixel_error > 0.0) || !std::isfinite(options.pixel_error)) {
+    throw InputError("relative_pose.pixel_error must be a finite number > 0");
+  }
+  if (!(options.max_iterations >= 1)) throw InputError("relative_pose.max_iterations must be >= 1");
+  if (!(options.probability > 0.0 && options.probability < 1.0)) {
+    throw InputError("relative_pose.probability must be in (0, 1)");
+  }
+  if (!(options.min_inliers >= 5)) throw InputError("relative_pose.min_inliers must be >= 5");
+  if (!(options.min_inlier_ratio >= 0.0 && options.min_inlier_ratio <= 1.0)) {
+    throw InputError("relative_pose.min_inlier_ratio must be in [0, 1]");
+  }
+  if (!(options.min_spread_px >= 0.0) || !std::isfinite(options.min_spread_px)) {
+    throw InputError("relative_pose.min_spread_px must be a finite number >= 0");
+  }
+}
+
+double ransacThreshold(double pixel_error, double focal_px) {
+  return 2.0 * (1.0 - std::cos(std::atan(pixel_error / focal_px)));
+}
+
+RelativePoseResult estimateRelativePose(const std::vector<Eigen::Vector3d>& bearings_target,
+                                        const std::vector<Eigen::Vector3d>& bearings_source, double focal_px,
+                                        const RelativePoseOptions& options) {
+  validate(options);
+  if (bearings_target.size() != bearings_source.size()) {
+    throw InputError("estimateRelativePose: " + std::to_string(bearings_target.size()) + " target bearings but " +
+                     std::to_string(bearings_source.size()) + " source bearings");
+  }
+  if (!(focal_px > 0.0) || !std::isfinite(focal_px)) {
+    throw InputError("estimateRelativePose: focal length must be a finite number > 0 px");
+  }
+
+  RelativePoseResult result;
+  const std::size_t n_given = bearings_target.size();
+
+  // Keep the correspondences with finite, non-zero bearings on both sides; OpenGV sees only
+  // those (viewpoint 1 = target, viewpoint 2 = source) and original_index maps back.
+  opengv::bearingVectors_t target;
+  opengv::bearingVectors_t source;
+  std::vector<int> original_index;
+  target.reserve(n_given);
+  source.reserve(n_given);
+  original_index.reserve(n_given);
+  for (std::size_t i = 0; i < n_given; ++i) {
+    const Eigen::Vector3d& ft = bearings_target[i];
+    const Eigen::Vector3d& fs = bearings_source[i];
+    if (!ft.allFinite() || !fs.allFinite()) continue;
+    const double nt = ft.norm();
+    const double ns = fs.norm();
+    if (!(nt > 1e-12) || !(ns > 1e-12) || !std::isfinite(nt) || !std::isfinite(ns)) continue;
+    target.push_back(ft / nt);
+    source.push_back(fs / ns);
+    original_index.push_back(static_cast<int>(i));
+  }
+
+  const int sample_size = relativePoseSampleSize(options.algorithm);
+  const int needed = std::max(sample_size, options.min_inliers);
+  const int n_valid = static_cast<int>(target.size());
+  if (n_valid < needed) {
+    std::ostringstream os;
+    os << "relative pose: " << n_valid << " valid correspondences of " << n_given << ", need at least " << needed;
+    result.status = Status::kNotEnoughMatches;
+    result.message = os.str();
+    return result;
+  }
+
+  const double min_spread_rad = std::atan(options.min_spread_px / focal_px);
+  std::vector<int> all_valid(static_cast<std::size_t>(n_valid));
+  for (int i = 0; i < n_valid; ++i) all_valid[static_cast<std::size_t>(i)] = i;
+  if (!spreadOk(target, source, all_valid, min_spread_rad, "input", &result.message)) {
+    result.status = Status::kDegenerate;
+    return result;
+  }
+
+  const double threshold = ransacThreshold(options.pixel_error, focal_px);
+  opengv::transformation_t model;
+  std::vector<int> inliers;  // indices into target/source
+  bool refined = false;
+  try {
+    opengv::relative_pose::CentralRelativeAdapter adapter(target, source);
+    auto problem = std::make_shared<SacProblem>(adapter, toOpengv(options.algorithm), /*randomSeed=*/false);
+    opengv::sac::Ransac<SacProblem> ransac;
+    ransac.sac_model_ = problem;
+    ransac.threshold_ = threshold;
+    ransac.max_iterations_ = options.max_iterations;
+    ransac.probability_ = options.probability;
+    if (!ransac.computeModel() || !isFinite(ransac.model_coefficients_)) {
+      result.status = Status::kRelativePoseFailed;
+      result.message = "relative pose: RANSAC found no model (" +
+                       std::string(relativePoseAlgorithmName(options.algorithm)) + ", " + std::to_string(n_valid) +
+                       " correspondences)";
+      return result;
+    }
+    model = ransac.model_coefficients_;
+    inliers = ransac.inliers_;
+
+    // OpenGV's optimize_nonlinear stops early on its flat cost (it squares the (1 - cos) terms),
+    // so refine -> re-select inliers is repeated until the inliers and the pose settle.
+    for (int round = 0; options.nonlinear_refinement && round < kMaxRefinementRounds &&
+                        static_cast<int>(inliers.size()) >= sample_size;
+         ++round) {
+      adapter.setR12(model.block<3, 3>(0, 0));
+      adapter.sett12(model.col(3).normalized());
+      const opengv::transformation_t optimised = opengv::relative_pose::optimize_nonlinear(adapter, inliers);
+      if (!isFinite(optimised) || !(optimised.col(3).norm() > 1e-12)) break;
+      std::vector<int> refined_inliers;
+      problem->selectWithinDistance(optimised, threshold, refined_inliers);
+      // A refinement that loses most of the support has left the basin of the RANSAC model:
+      // keep the model of the previous round.
+      if (static_cast<double>(refined_inliers.size()) < kMinKeptSupport * static_cast<double>(inliers.size())) break;
+      const double change = rotationDistance(optimised.block<3, 3>(0, 0), model.block<3, 3>(0, 0)) +
+                            std::acos(std::min(1.0, optimised.col(3).normalized().dot(model.col(3).normalized())));
+      const bool same_inliers = refined_inliers == inliers;
+      model = optimised;
+      inliers = refined_inliers;
+      refined = true;
+      if (same_inliers && change < kRefinementConvergedRad) break;
+    }
+  } catch (const std::exception& e) {
+    result.status = Status::kRelativePoseFailed;
+    result.message = std::string("relative pose: OpenGV failed: ") + e.what();
+    return result;
+  }
+
+  const Eigen::Matrix3d r = model.block<3, 3>(0, 0);
+  const Eigen::Vector3d t = model.col(3);
+  const double t_norm = t.norm();
+  if (!r.allFinite() || !t.allFinite() || !(t_norm > 1e-12)) {
+    result.status = Status::kRelativePoseFailed;
+    result.message = "relative pose: the estimated model is not finite or has no translation";
+    return result;
+  }
+  result.rotation = projectToRotation(r);
+  result.translation_direction = t / t_norm;
+  if (!result.rotation.allFinite()) {
+    result.status = Status::kRelativePoseFailed;
+    result.message = "relative pose: the estimated rotation is not finite";
+    result.rotation.setIdentity();
+    result.translation_direction.setZero();
+    return result;
+  }
+
+  result.inliers.reserve(inliers.size());
+  for (int i : inliers) result.inliers.push_back(original_index[static_cast<std::size_t>(i)]);
+  std::sort(result.inliers.begin(), result.inliers.end());
+  result.inlier_count = static_cast<int>(result.inliers.size());
+  result.inlier_ratio = static_cast<double>(result.inlier_count) / static_cast<double>(n_given);
+
+  std::ostringstream os;
+  os << result.inlier_count << " inliers of " << n_given << " correspondences ("
+     << relativePoseAlgorithmName(options.algorithm) << (refined ? ", refined" : "") << ")";
+  if (result.inlier_count < options.min_inliers || result.inlier_ratio < options.min_inlier_ratio) {
+    result.status = Status::kNotEnoughMatches;
+    os << ", need at least " << options.min_inliers << " inliers and an inlier ratio of " << options.min_inlier_ratio;
+    result.message = "relative pose: " + os.str();
+    return result;
+  }
+  if (!spreadOk(target, source, inliers, min_spread_rad, "inliers", &result.message)) {
+    result.status = Status::kDegenerate;
+    return result;
+  }
+  result.status = Status::kOk;
+  result.message = "relative pose: " + os.str();
+  return result;
+}
+
+}  // namespace pcr_pro

@@ -1,0 +1,70 @@
+#include "pcr_pro/geometry/kdtree.h"
+
+#include <nanoflann.hpp>
+
+#include <cstdint>
+
+namespace pcr_pro {
+namespace {
+
+struct CloudAdaptor {
+  const Cloud* cloud;
+  std::size_t kdtree_get_point_count() const { return static_cast<std::size_t>(cloud->cols()); }
+  double kdtree_get_pt(std::size_t idx, std::size_t dim) const {
+    return (*cloud)(static_cast<Eigen::Index>(dim), static_cast<Eigen::Index>(idx));
+  }
+  template <class Bbox>
+  bool kdtree_get_bbox(Bbox& /*bb*/) const {
+    return false;
+  }
+};
+
+using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, CloudAdaptor>, CloudAdaptor, 3,
+                                                 uint32_t>;
+}  // namespace
+
+struct KdTree::Impl {
+  Cloud points;
+  CloudAdaptor adaptor;
+  std::unique_ptr<Tree> tree;
+};
+
+KdTree::KdTree(const Cloud& cloud) : impl_(new Impl) {
+  impl_->points = cloud;
+  impl_->adaptor.cloud = &impl_->points;
+  if (cloud.cols() > 0) {
+    impl_->tree.reset(new Tree(3, impl_->adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(12)));
+  }
+}
+
+KdTree::~KdTree() = default;
+
+Eigen::Index KdTree::size() const { return impl_->points.cols(); }
+
+const Cloud& KdTree::points() const { return impl_->points; }
+
+Eigen::Index KdTree::nearest(const Eigen::Vector3d& query, double* squared_distance) const {
+  if (!impl_->tree) return -1;
+  uint32_t index = 0;
+  double d2 = 0.0;
+  nanoflann::KNNResultSet<double, uint32_t> result(1);
+  result.init(&index, &d2);
+  impl_->tree->findNeighbors(result, query.data(), nanoflann::SearchParams());
+  if (squared_distance) *squared_distance = d2;
+  return static_cast<Eigen::Index>(index);
+}
+
+void KdTree::knn(const Eigen::Vector3d& query, int k, std::vector<Eigen::Index>* indices,
+                 std::vector<double>* squared_distances) const {
+  indices->clear();
+  squared_distances->clear();
+  if (!impl_->tree || k <= 0) return;
+  std::vector<uint32_t> idx(static_cast<std::size_t>(k));
+  squared_distances->resize(static_cast<std::size_t>(k));
+  const std::size_t found = impl_->tree->knnSearch(query.data(), static_cast<std::size_t>(k), idx.data(),
+                                                   squared_distances->data());
+  squared_distances->resize(found);
+  indices->assign(idx.begin(), idx.begin() + static_cast<std::ptrdiff_t>(found));
+}
+
+}  // namespace pcr_pro

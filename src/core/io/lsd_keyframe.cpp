@@ -1,0 +1,90 @@
+// LSD-SLAM keyframe points with the LSD viewer's filters (see lsd_keyframe.h).
+#include "pcr_pro/io/lsd_keyframe.h"
+
+#include <cmath>
+#include <random>
+#include <sstream>
+
+#include "pcr_pro/geometry/types.h"
+
+namespace pcr_pro {
+
+namespace {
+
+void require(bool ok, const std::string& key, const std::string& what, double value) {
+  if (ok) return;
+  std::ostringstream s;
+  s << "lsd." << key << ": " << what << ", got " << value;
+  throw InputError(s.str());
+}
+
+}  // namespace
+
+void validate(const LsdFilterOptions& o) {
+  require(std::isfinite(o.scaled_depth_var_th) && o.scaled_depth_var_th > 0.0, "scaled_depth_var_th", "must be > 0",
+          o.scaled_depth_var_th);
+  require(std::isfinite(o.abs_depth_var_th) && o.abs_depth_var_th > 0.0, "abs_depth_var_th", "must be > 0",
+          o.abs_depth_var_th);
+  require(o.min_near_support >= 0 && o.min_near_support <= 9, "min_near_support", "must be in [0, 9]",
+          o.min_near_support);
+  require(o.sparsify_factor >= 1, "sparsify_factor", "must be >= 1", o.sparsify_factor);
+}
+
+LsdPoints extractPoints(const LsdKeyframe& kf, const LsdFilterOptions& o) {
+  LsdPoints out;
+  const int w = kf.idepth.cols, h = kf.idepth.rows;
+  out.depth = cv::Mat::zeros(h, w, CV_32FC1);
+  std::vector<Eigen::Vector3d> points;
+  const double scale = kf.cam_to_world.scale();
+  // Deterministic sparsification: one fixed-seed generator per keyframe id.
+  std::mt19937 rng(static_cast<std::mt19937::result_type>(kf.id * 2654435761UL + 1));
+  std::uniform_int_distribution<int> pick(0, std::max(0, o.sparsify_factor - 1));
+  for (int y = 1; y < h - 1; ++y) {
+    const float* id_row = kf.idepth.ptr<float>(y);
+    const float* var_row = kf.idepth_var.ptr<float>(y);
+    for (int x = 1; x < w - 1; ++x) {
+      const float idepth = id_row[x];
+      if (!(idepth > 0.0f) || !std::isfinite(idepth)) continue;
+      if (o.sparsify_factor > 1 && pick(rng) != 0) continue;
+      const double var = var_row[x];
+      if (!std::isfinite(var) || var < 0.0) continue;
+      const double depth = 1.0 / idepth;
+      const double depth4 = depth * depth * depth * depth;
+      // Written so that NaN (0 * inf for a tiny idepth with zero variance) fails the test too.
+      if (!(var * depth4 <= o.scaled_depth_var_th)) continue;
+      if (!(var * depth4 * scale * scale <= o.abs_depth_var_th)) continue;
+      if (o.min_near_support > 1) {
+        int support = 0;
+        for (int dy = -1; dy <= 1; ++dy) {
+          const float* nb_row = kf.idepth.ptr<float>(y + dy);
+          for (int dx = -1; dx <= 1; ++dx) {
+            const float nb = nb_row[x + dx];
+            if (!(nb > 0.0f)) continue;
+            const double diff = nb - idepth;
+            if (diff * diff < 2.0 * var) ++support;
+          }
+        }
+        if (support < o.min_near_support) continue;
+      }
+      const Eigen::Vector3d p((x - kf.camera.cx) / kf.camera.fx * depth, (y - kf.camera.cy) / kf.camera.fy * depth,
+                              depth);
+      if (!p.allFinite() || !std::isfinite(static_cast<float>(depth))) continue;
+      points.push_back(p);
+      out.depth.at<float>(y, x) = static_cast<float>(depth);
+    }
+  }
+  out.camera_points.resize(3, static_cast<Eigen::Index>(points.size()));
+  for (std::size_t i = 0; i < points.size(); ++i) out.camera_points.col(static_cast<Eigen::Index>(i)) = points[i];
+  return out;
+}
+
+MapKeyframe toKeyframe(const LsdKeyframe& lsd, const LsdPoints& points) {
+  MapKeyframe kf;
+  kf.id = lsd.id;
+  kf.image = lsd.image;
+  kf.depth = points.depth;
+  kf.pose = lsd.cam_to_world;
+  return kf;
+}
+
+}  // namespace pcr_pro

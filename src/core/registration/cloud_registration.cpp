@@ -1,0 +1,86 @@
+#include "pcr_pro/registration/cloud_registration.h"
+
+#include <chrono>
+
+#include "pcr_pro/registration/covariance.h"
+#include "pcr_pro/registration/filters.h"
+#include "pcr_pro/registration/icp.h"
+#include "pcr_pro/registration/scale_detection.h"
+
+namespace pcr_pro {
+namespace {
+
+double msSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+}
+
+}  // namespace
+
+RegistrationReport registerClouds(const Cloud& source, const Cloud& target, const std::optional<Sim3>& initial,
+                                  const RegistrationOptions& options, const KdTree* target_tree) {
+  validate(options);
+  if (source.cols() == 0) throw InputError("source cloud is empty");
+  if (target.cols() == 0) throw InputError("target cloud is empty");
+  if (target_tree && (!options.filters.steps.empty() || target_tree->size() != target.cols())) {
+    throw InputError("registerClouds: a target k-d tree needs an empty filter chain and the target's points");
+  }
+  const auto t_total = std::chrono::steady_clock::now();
+  RegistrationReport report;
+
+  auto t = std::chrono::steady_clock::now();
+  const ScaleDetectionResult detection = detectScale(source, target, options.scale_detection);
+  report.timings.scale = msSince(t);
+  report.scale_difference_detected = detection.scale_difference_detected;
+  report.detected_scale_ratio = detection.ratio;
+
+  t = std::chrono::steady_clock::now();
+  const Cloud src = applyFilterChain(source, options.filters);
+  const Cloud tgt = applyFilterChain(target, options.filters);
+  report.timings.filters = msSince(t);
+  if (src.cols() == 0 || tgt.cols() == 0) {
+    report.status = Status::kInvalidInput;
+    report.message = std::string("the filters removed every point of the ") + (src.cols() == 0 ? "source" : "target") +
+                     " cloud";
+    report.timings.total = msSince(t_total);
+    return report;
+  }
+
+  Sim3 start;
+  if (initial) {
+    start = *initial;
+  } else if (options.icp.estimate_scale && detection.scale_difference_detected) {
+    start = Sim3(detection.ratio, Eigen::Matrix3d::Identity(),
+                 detection.target.centroid - detection.ratio * detection.source.centroid);
+  }
+
+  t = std::chrono::steady_clock::now();
+  const IcpResult icp = target_tree ? alignIcp(src, *target_tree, start, options.icp) : alignIcp(src, tgt, start, options.icp);
+  report.timings.icp = msSince(t);
+  report.transform = icp.transform;
+  report.icp_iterations = icp.iterations;
+  report.correspondences = icp.correspondences;
+  report.fitness_rmse = icp.fitness_rmse;
+  report.status = icp.status;
+  report.message = icp.message;
+  if (icp.status == Status::kOk) {
+    t = std::chrono::steady_clock::now();
+    const CovarianceResult cov = computeIcpCovariance(icp.matches, icp.transform, options.icp.error_metric,
+                                                      options.icp.estimate_scale, options.covariance);
+    report.timings.covariance = msSince(t);
+    if (cov.status == Status::kOk || cov.status == Status::kDegenerate) {
+      report.covariance = cov.covariance;
+      report.information = cov.information;
+      report.condition_number = cov.condition_number;
+      report.noise_stddev = cov.noise_stddev;
+      if (options.icp.estimate_scale) report.scale_stddev = cov.scale_stddev;
+    }
+    if (cov.status != Status::kOk) {
+      report.status = cov.status;
+      report.message = cov.message;
+    }
+  }
+  report.timings.total = msSince(t_total);
+  return report;
+}
+
+}  // namespace pcr_pro

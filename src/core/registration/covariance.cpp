@@ -1,0 +1,360 @@
+#include "pcr_pro/registration/covariance.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <numeric>
+#include <random>
+#include <sstream>
+#include <unordered_set>
+#include <vector>
+
+#include "pcr_pro/geometry/kdtree.h"
+#include "pcr_pro/geometry/normals.h"
+
+namespace pcr_pro {
+namespace {
+
+using Matrix73d = Eigen::Matrix<double, 7, 3>;
+using Vector7d = Eigen::Matrix<double, 7, 1>;
+
+// Change of variables from the normalised, centroid-referenced perturbation u to the contract's
+// origin-referenced δ: δ = K u, K = Tc D. u_t = δt about the centroid c, u_r = ρ δω, u_s = ρ δσ,
+// so that every component of u is a displacement [target units].
+Matrix7d centroidToOrigin(const Eigen::Vector3d& c, double rho) {
+  Matrix7d tc = Matrix7d::Identity();
+  tc.block<3, 3>(0, 3) = skew(c);
+  tc.block<3, 1>(0, 6) = -c;
+  Vector7d d;
+  d << 1, 1, 1, 1 / rho, 1 / rho, 1 / rho, 1 / rho;
+  return tc * d.asDiagonal();
+}
+
+const char* kDirectionNames[7] = {"x", "y", "z", "rot_x", "rot_y", "rot_z", "scale"};
+
+// Left-perturbation pose difference δ with a = exp(δ) b, to first order (x y z rot_x rot_y rot_z).
+Vector6d poseDifference(const Sim3& a, const Sim3& b) {
+  const Eigen::Matrix3d dr = a.rotation() * b.rotation().transpose();
+  const Eigen::AngleAxisd aa(dr);
+  Vector6d d;
+  d.head<3>() = a.translation() - (a.scale() / b.scale()) * dr * b.translation();
+  d.tail<3>() = aa.angle() * aa.axis();
+  return d;
+}
+
+// The distinct matched target points (several source points may share one).
+Cloud distinctTargets(const Cloud& targets) {
+  struct Hash {
+    std::size_t operator()(const Eigen::Vector3d& p) const {
+      std::size_t h = 0;
+      for (int k = 0; k < 3; ++k) {
+        std::uint64_t bits = 0;
+        const double v = p(k);
+        std::memcpy(&bits, &v, sizeof bits);
+        h ^= std::hash<std::uint64_t>()(bits) + 0x9e3779b97f4a7c15ULL + (h << 6) + (h >> 2);
+      }
+      return h;
+    }
+  };
+  std::unordered_set<Eigen::Vector3d, Hash> seen;
+  seen.reserve(static_cast<std::size_t>(targets.cols()));
+  Cloud out(3, targets.cols());
+  Eigen::Index k = 0;
+  for (Eigen::Index i = 0; i < targets.cols(); ++i) {
+    if (seen.insert(targets.col(i)).second) out.col(k++) = targets.col(i);
+  }
+  return out.leftCols(k);
+}
+
+Cloud pick(const Cloud& cloud, const std::vector<Eigen::Index>& order, std::size_t begin, std::size_t end) {
+  Cloud out(3, static_cast<Eigen::Index>(end - begin));
+  for (std::size_t i = begin; i < end; ++i) out.col(static_cast<Eigen::Index>(i - begin)) = cloud.col(order[i]);
+  return out;
+}
+
+struct Calibration {
+  double kappa = 1.0;  // mean split-sample NEES per degree of freedom
+  int splits = 0;      // splits that contributed
+};
+
+// Split-sample calibration (see covariance.h): re-registers disjoint random halves of the
+// matched source and target points from the converged pose and compares their disagreement
+// with the closed-form prediction.
+Calibration splitSampleCalibration(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
+                                   bool with_scale, const CovarianceOptions& o) {
+  Calibration cal;
+  const Cloud targets = distinctTargets(matches.target);
+  std::mt19937 rng(12345u);
+  std::vector<Eigen::Index> src_order(static_cast<std::size_t>(matches.source.cols()));
+  std::vector<Eigen::Index> tgt_order(static_cast<std::size_t>(targets.cols()));
+  IcpOptions io;
+  io.error_metric = metric;
+  io.estimate_scale = with_scale;
+  io.max_source_points = 0;
+  io.trim_ratio = 1.0;       // the matches are already the kept (trimmed) ones
+  io.max_iterations = 8;     // the halves start at the converged pose: a few re-matchings suffice
+  io.normal_neighbors = o.normal_neighbors;
+  CovarianceOptions closed = o;
+  closed.model = CovarianceModel::kClosedForm;
+  const auto cap = [&](std::size_t size) {
+    return o.calibration_max_points > 0 ? std::min(size, static_cast<std::size_t>(o.calibration_max_points)) : size;
+  };
+  const std::size_t ns = cap(src_order.size()), nt = cap(tgt_order.size());
+  // The random splits are drawn first, in order, so that the result does not depend on how
+  // the splits are then spread over threads.
+  const auto splits = static_cast<std::size_t>(o.calibration_splits);
+  std::vector<std::vector<Eigen::Index>> src_orders(splits), tgt_orders(splits);
+  for (std::size_t split = 0; split < splits; ++split) {
+    std::iota(src_order.begin(), src_order.end(), 0);
+    std::iota(tgt_order.begin(), tgt_order.end(), 0);
+    std::shuffle(src_order.begin(), src_order.end(), rng);
+    std::shuffle(tgt_order.begin(), tgt_order.end(), rng);
+    src_orders[split] = src_order;
+    tgt_orders[split] = tgt_order;
+  }
+  std::vector<double> nees(splits, -1.0);  // < 0: the split did not contribute
+#pragma omp parallel for schedule(dynamic)
+  for (std::size_t split = 0; split < splits; ++split) {
+    Sim3 est[2];
+    Matrix6d cov[2];
+    bool ok = true;
+    for (int half = 0; half < 2 && ok; ++half) {
+      const Cloud src = pick(matches.source, src_orders[split], half * ns / 2, (half + 1) * ns / 2);
+      const Cloud tgt = pick(targets, tgt_orders[split], half * nt / 2, (half + 1) * nt / 2);
+      if (src.cols() < 20 || tgt.cols() < 20) {
+        ok = false;
+        break;
+      }
+      const IcpResult r = alignIcp(src, tgt, transform, io);
+      // An iteration-capped half still measures the disagreement; too few matches does not.
+      if (r.correspondences < io.min_correspondences || !r.transform.matrix().allFinite()) {
+        ok = false;
+        break;
+      }
+      const CovarianceResult c = computeIcpCovariance(r.matches, r.transform, metric, with_scale, closed);
+      if (c.status != Status::kOk) {
+        ok = false;
+        break;
+      }
+      est[half] = r.transform;
+      cov[half] = c.covariance;
+    }
+    if (!ok) continue;
+    const Vector6d d = poseDifference(est[0], est[1]);
+    const Eigen::LDLT<Matrix6d> ldlt(cov[0] + cov[1]);
+    if (ldlt.info() != Eigen::Success) continue;
+    nees[split] = d.dot(ldlt.solve(d)) / 6.0;
+  }
+  double sum = 0.0;
+  for (double v : nees) {
+    if (v >= 0.0) {
+      sum += v;
+      ++cal.splits;
+    }
+  }
+  if (cal.splits > 0) cal.kappa = sum / cal.splits;
+  return cal;
+}
+
+}  // namespace
+
+const char* covarianceModelName(CovarianceModel model) {
+  return model == CovarianceModel::kClosedForm ? "closed_form" : "calibrated";
+}
+
+bool parseCovarianceModel(const std::string& name, CovarianceModel* model) {
+  if (name == "closed_form") {
+    *model = CovarianceModel::kClosedForm;
+    return true;
+  }
+  if (name == "calibrated") {
+    *model = CovarianceModel::kCalibrated;
+    return true;
+  }
+  return false;
+}
+
+void validate(const CovarianceOptions& o) {
+  if (!(o.sensor_noise_stddev >= 0.0) || !std::isfinite(o.sensor_noise_stddev)) {
+    throw InputError("covariance.sensor_noise_stddev must be >= 0");
+  }
+  if (!(o.degeneracy_condition_threshold > 1.0)) throw InputError("covariance.degeneracy_condition_threshold must be > 1");
+  if (o.normal_neighbors < 3) throw InputError("covariance.normal_neighbors must be >= 3");
+  if (o.calibration_splits < 1) throw InputError("covariance.calibration_splits must be >= 1");
+  if (o.calibration_max_points < 0 || (o.calibration_max_points > 0 && o.calibration_max_points < 100)) {
+    throw InputError("covariance.calibration_max_points must be 0 or >= 100");
+  }
+}
+
+CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
+                                      bool with_scale, const CovarianceOptions& o) {
+  validate(o);
+  CovarianceResult res;
+  res.with_scale = with_scale;
+  const Eigen::Index n = matches.source.cols();
+  res.correspondences = static_cast<int>(n);
+  const int d = with_scale ? 7 : 6;
+  if (n < d + 1 || matches.target.cols() != n) {
+    res.status = Status::kIcpNotConverged;
+    res.message = "covariance: need at least " + std::to_string(d + 1) + " correspondences, have " + std::to_string(n);
+    return res;
+  }
+  const bool plane = metric == ErrorMetric::kPointToPlane;
+  if (plane && matches.target_normals.cols() != n) {
+    throw InputError("covariance: point-to-plane needs one target normal per correspondence");
+  }
+
+  // Pre-pass: centroid and RMS radius of the transformed source points (the reference of u).
+  const Cloud y_all = transform.apply(matches.source);
+  const Eigen::Vector3d c = y_all.rowwise().mean();
+  double rho = std::sqrt((y_all.colwise() - c).colwise().squaredNorm().mean());
+  if (!(rho > 0.0)) rho = 1.0;
+  const double inv_rho = 1.0 / rho;
+
+  // Normals for the observability analysis: the ICP's own, or estimated on the matched targets.
+  Cloud normals;
+  if (matches.target_normals.cols() == n) {
+    normals = matches.target_normals;
+  } else {
+    KdTree tree(matches.target);
+    normals = estimateNormals(tree, o.normal_neighbors);
+  }
+
+  // O(n) accumulation in u coordinates: H = Σ JᵀJ, G = Σ (∂g/∂y)(∂g/∂y)ᵀ, O = geometric information.
+  Matrix7d h = Matrix7d::Zero(), g = Matrix7d::Zero(), obs = Matrix7d::Zero();
+  double sum_r2 = 0.0;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const Eigen::Vector3d y = y_all.col(i);
+    const Eigen::Vector3d q = matches.target.col(i);
+    const Eigen::Vector3d a = y - c;
+    const Eigen::Vector3d r = y - q;
+    const Eigen::Vector3d nrm = normals.col(i);
+    Vector7d an;
+    an << nrm, a.cross(nrm) * inv_rho, nrm.dot(a) * inv_rho;
+    obs.noalias() += an * an.transpose();
+    if (plane) {
+      const double rp = nrm.dot(r);
+      Matrix73d b = Matrix73d::Zero();
+      b.block<3, 3>(3, 0) = -skew(nrm) * inv_rho;
+      b.block<1, 3>(6, 0) = nrm.transpose() * inv_rho;
+      const Matrix73d dgdy = an * nrm.transpose() + b * rp;
+      h.noalias() += an * an.transpose();
+      g.noalias() += dgdy * dgdy.transpose();
+      sum_r2 += rp * rp;
+    } else {
+      Matrix73d jt;  // Jᵀ (7x3): residual r = y - q w.r.t. u
+      jt.block<3, 3>(0, 0).setIdentity();
+      jt.block<3, 3>(3, 0) = skew(a) * inv_rho;  // (−[a]x)ᵀ
+      jt.block<1, 3>(6, 0) = a.transpose() * inv_rho;
+      Matrix73d dgdy;
+      dgdy.block<3, 3>(0, 0).setIdentity();
+      dgdy.block<3, 3>(3, 0) = skew(q - c) * inv_rho;
+      dgdy.block<1, 3>(6, 0) = (r + a).transpose() * inv_rho;
+      h.noalias() += jt * jt.transpose();
+      g.noalias() += dgdy * dgdy.transpose();
+      sum_r2 += r.squaredNorm();
+    }
+  }
+
+  // Noise: configured, or from the residuals (each cloud contributes σ² per coordinate).
+  double sigma2 = o.sensor_noise_stddev * o.sensor_noise_stddev;
+  if (!(sigma2 > 0.0)) {
+    const double dof = plane ? static_cast<double>(n - d) : static_cast<double>(3 * n - d);
+    sigma2 = sum_r2 / (2.0 * dof);
+  }
+  res.noise_stddev = std::sqrt(sigma2);
+
+  // Degeneracy from the geometric information over the pose (and scale) directions.
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> oeig(obs.topLeftCorner(d, d));
+  const Eigen::VectorXd oev = oeig.eigenvalues();  // ascending
+  const double max_ev = oev(d - 1);
+  res.condition_number = oev(0) > 0.0 ? max_ev / oev(0) : std::numeric_limits<double>::infinity();
+  Eigen::MatrixXd null_dirs(d, 0);
+  for (int k = 0; k < d; ++k) {
+    if (!(oev(k) * o.degeneracy_condition_threshold > max_ev)) {
+      null_dirs.conservativeResize(d, null_dirs.cols() + 1);
+      null_dirs.col(null_dirs.cols() - 1) = oeig.eigenvectors().col(k);
+    }
+  }
+
+  // Censi on the observable subspace V_o (unobservable directions V_n are kept out of every
+  // inversion): cov_o = σ² H_o⁻¹ (G_o + H_o) H_o⁻¹ with X_o = V_oᵀ X V_o; the H term is the
+  // target-point noise, G the source-point noise.
+  const Eigen::Index k_obs = d - null_dirs.cols();
+  const Eigen::MatrixXd v_obs = oeig.eigenvectors().rightCols(k_obs);
+  const Eigen::MatrixXd h_o = v_obs.transpose() * h.topLeftCorner(d, d) * v_obs;
+  const Eigen::MatrixXd g_o = v_obs.transpose() * g.topLeftCorner(d, d) * v_obs;
+  const Eigen::MatrixXd h_o_inv = h_o.inverse();
+  Eigen::MatrixXd cov_o = sigma2 * h_o_inv * (g_o + h_o) * h_o_inv;
+  cov_o = 0.5 * (cov_o + cov_o.transpose()).eval();
+  if (o.model == CovarianceModel::kCalibrated) {
+    const Calibration cal = splitSampleCalibration(matches, transform, metric, with_scale, o);
+    res.inflation = std::max(1.0, cal.kappa);
+    res.calibration_splits_used = cal.splits;
+    cov_o *= res.inflation;
+  }
+  const Eigen::MatrixXd info_o = cov_o.inverse();
+
+  // Back to u (d x d): unobservable directions get an effectively unbounded variance and no
+  // information at all.
+  Matrix7d cov_u = Matrix7d::Zero(), info_u = Matrix7d::Zero();
+  cov_u.topLeftCorner(d, d) = v_obs * cov_o * v_obs.transpose();
+  info_u.topLeftCorner(d, d) = v_obs * info_o * v_obs.transpose();
+  const double big = 1e6 * rho * rho;
+  for (Eigen::Index k = 0; k < null_dirs.cols(); ++k) {
+    cov_u.topLeftCorner(d, d) += big * null_dirs.col(k) * null_dirs.col(k).transpose();
+  }
+
+  // u -> δ. Covariance: the 6x6 pose block is the marginal. Information of the pose marginal:
+  // the Schur complement of the scale in the joint information.
+  const Matrix7d kmat = centroidToOrigin(c, rho);
+  const Matrix7d kinv = kmat.inverse();
+  const Matrix7d cov7 = kmat * cov_u * kmat.transpose();  // log scale as 7th variable
+  res.covariance = cov7.topLeftCorner<6, 6>();
+  const Matrix7d info7 = kinv.transpose() * info_u * kinv;
+  res.information = info7.topLeftCorner<6, 6>();
+  if (with_scale && info7(6, 6) > 0.0) {
+    res.information -= info7.block<6, 1>(0, 6) * info7.block<1, 6>(6, 0) / info7(6, 6);
+  }
+  res.information = 0.5 * (res.information + res.information.transpose()).eval();
+
+  if (with_scale) {
+    Vector7d jd = Vector7d::Ones();
+    jd(6) = transform.scale();  // δσ = δs / s
+    res.covariance7 = jd.asDiagonal() * cov7 * jd.asDiagonal();
+    res.scale_stddev = std::sqrt(std::max(0.0, res.covariance7(6, 6)));
+  } else {
+    res.covariance7.topLeftCorner<6, 6>() = res.covariance;
+  }
+
+  if (null_dirs.cols() > 0) {
+    // Name the dominant component of the weakest direction, mapped back to δ.
+    const Vector7d weakest = (Vector7d() << null_dirs.col(0), Eigen::VectorXd::Zero(7 - d)).finished();
+    Vector7d w = kmat * weakest;
+    w.head<3>() *= inv_rho;  // compare translation and rotation on the same footing
+    Eigen::Index arg = 0;
+    w.cwiseAbs().maxCoeff(&arg);
+    std::ostringstream msg;
+    msg << "covariance: " << null_dirs.cols() << " unobservable direction(s), weakest along " << kDirectionNames[arg]
+        << " (condition number " << res.condition_number << " > " << o.degeneracy_condition_threshold << ")";
+    res.status = Status::kDegenerate;
+    res.message = msg.str();
+  } else {
+    res.status = Status::kOk;
+    std::ostringstream msg;
+    msg << "covariance (" << covarianceModelName(o.model) << ") from " << n << " correspondences, noise "
+        << res.noise_stddev << ", condition number " << res.condition_number;
+    if (o.model == CovarianceModel::kCalibrated) {
+      msg << ", inflation " << res.inflation << " from " << res.calibration_splits_used << " split(s)";
+    }
+    res.message = msg.str();
+  }
+  return res;
+}
+
+}  // namespace pcr_pro

@@ -1,0 +1,406 @@
+#include "pcr_pro/registration/icp.h"
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "pcr_pro/registration/filters.h"
+#include "pcr_pro/geometry/kdtree.h"
+#include "pcr_pro/geometry/normals.h"
+
+namespace pcr_pro {
+namespace {
+
+struct Match {
+  Eigen::Index source;
+  Eigen::Index target;
+  double d2;
+};
+
+// Nearest neighbour of every transformed source point, then the distance and trim rejection.
+// Dynamic chunks: a core busy with another process (SLAM runs beside us) then slows the loop
+// down to one thread's speed instead of stalling it at the barrier.
+std::vector<Match> matchAndReject(const Cloud& moved, const KdTree& tree, const IcpOptions& o) {
+  const Eigen::Index n = moved.cols();
+  std::vector<Match> all(static_cast<std::size_t>(n));
+#pragma omp parallel for schedule(dynamic, 256) if (n >= 1024)
+  for (Eigen::Index i = 0; i < n; ++i) {
+    double d2 = 0.0;
+    const Eigen::Index j = tree.nearest(moved.col(i), &d2);
+    all[static_cast<std::size_t>(i)] = Match{i, j, d2};
+  }
+  std::vector<Match> kept;
+  kept.reserve(all.size());
+  const double max_d2 = o.max_correspondence_distance > 0.0
+                            ? o.max_correspondence_distance * o.max_correspondence_distance
+                            : std::numeric_limits<double>::infinity();
+  for (const Match& m : all) {
+    if (m.target >= 0 && m.d2 <= max_d2) kept.push_back(m);
+  }
+  if (o.trim_ratio < 1.0 && !kept.empty()) {
+    const auto keep_n = std::max<std::size_t>(
+        1, static_cast<std::size_t>(std::ceil(o.trim_ratio * static_cast<double>(kept.size()))));
+    if (keep_n < kept.size()) {
+      std::nth_element(kept.begin(), kept.begin() + static_cast<std::ptrdiff_t>(keep_n - 1), kept.end(),
+                       [](const Match& a, const Match& b) { return a.d2 < b.d2; });
+      kept.resize(keep_n);
+    }
+  }
+  return kept;
+}
+
+// Pseudo-inverse solve of a symmetric positive semi-definite system; unobservable directions
+// (relative eigenvalue below 1e-12) get no update.
+template <int N>
+Eigen::Matrix<double, N, 1> solvePsd(const Eigen::Matrix<double, N, N>& h, const Eigen::Matrix<double, N, 1>& b) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> eig(h);
+  const auto& ev = eig.eigenvalues();
+  const double max_ev = ev.cwiseAbs().maxCoeff();
+  Eigen::Matrix<double, N, 1> x = Eigen::Matrix<double, N, 1>::Zero();
+  if (!(max_ev > 0.0)) return x;
+  for (int k = 0; k < N; ++k) {
+    if (ev(k) > 1e-12 * max_ev) {
+      const auto v = eig.eigenvectors().col(k);
+      x += v * (v.dot(b) / ev(k));
+    }
+  }
+  return x;
+}
+
+// One point-to-plane Gauss-Newton step, linearised about the centroid c of the moved points:
+// y' = c + e^ds R(w) (y - c) + dt. Returns the incremental similarity in the target frame.
+Sim3 pointToPlaneStep(const Cloud& moved, const Cloud& target, const Cloud& normals, const std::vector<Match>& m,
+                      bool with_scale, double max_log_scale_step) {
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (const Match& k : m) c += moved.col(k.source);
+  c /= static_cast<double>(m.size());
+  Eigen::Matrix<double, 7, 7> h = Eigen::Matrix<double, 7, 7>::Zero();
+  Eigen::Matrix<double, 7, 1> g = Eigen::Matrix<double, 7, 1>::Zero();
+  for (const Match& k : m) {
+    const Eigen::Vector3d y = moved.col(k.source);
+    const Eigen::Vector3d n = normals.col(k.target);
+    const Eigen::Vector3d a = y - c;
+    Eigen::Matrix<double, 7, 1> j;
+    j << n, a.cross(n), n.dot(a);
+    const double r = n.dot(y - target.col(k.target));
+    h.noalias() += j * j.transpose();
+    g.noalias() += j * r;
+  }
+  Eigen::Matrix<double, 7, 1> delta = Eigen::Matrix<double, 7, 1>::Zero();
+  if (with_scale) {
+    delta = solvePsd<7>(h, -g);
+  } else {
+    delta.head<6>() = solvePsd<6>(h.topLeftCorner<6, 6>(), -g.head<6>());
+  }
+  const double ds = std::max(-max_log_scale_step, std::min(max_log_scale_step, delta(6)));
+  const double s = std::exp(ds);
+  const Eigen::Matrix3d r = expSO3(delta.segment<3>(3));
+  return Sim3(s, r, c - s * (r * c) + delta.head<3>());
+}
+
+// Target normals estimated on demand: only target points that get matched ever need one.
+class LazyNormals {
+ public:
+  LazyNormals(const KdTree& tree, int k)
+      : tree_(tree), k_(k), normals_(Cloud::Zero(3, tree.size())), known_(static_cast<std::size_t>(tree.size()), 0) {}
+
+  // Makes sure every matched target point has its normal.
+  void ensure(const std::vector<Match>& matches) {
+    std::vector<Eigen::Index> missing;
+    for (const Match& m : matches) {
+      char& known = known_[static_cast<std::size_t>(m.target)];
+      if (!known) {
+        known = 1;
+        missing.push_back(m.target);
+      }
+    }
+    if (missing.empty()) return;
+    const Cloud fresh = estimateNormalsAt(tree_, missing, k_);
+    for (std::size_t i = 0; i < missing.size(); ++i) normals_.col(missing[i]) = fresh.col(static_cast<Eigen::Index>(i));
+  }
+
+  const Cloud& normals() const { return normals_; }
+
+ private:
+  const KdTree& tree_;
+  int k_;
+  Cloud normals_;
+  std::vector<char> known_;
+};
+
+}  // namespace
+
+const char* errorMetricName(ErrorMetric metric) {
+  return metric == ErrorMetric::kPointToPoint ? "point_to_point" : "point_to_plane";
+}
+
+bool parseErrorMetric(const std::string& name, ErrorMetric* metric) {
+  if (name == "point_to_point") {
+    *metric = ErrorMetric::kPointToPoint;
+    return true;
+  }
+  if (name == "point_to_plane") {
+    *metric = ErrorMetric::kPointToPlane;
+    return true;
+  }
+  return false;
+}
+
+void validate(const IcpOptions& o) {
+  if (o.max_source_points < 0) throw InputError("icp.sampling.max_source_points must be >= 0");
+  if (o.coarse_source_points < 0) throw InputError("icp.sampling.coarse_source_points must be >= 0");
+  if (o.normal_neighbors < 3) throw InputError("icp.matcher.normal_neighbors must be >= 3");
+  if (!(o.max_correspondence_distance >= 0.0)) {
+    throw InputError("icp.outlier_rejection.max_correspondence_distance must be >= 0");
+  }
+  if (!(o.trim_ratio > 0.0 && o.trim_ratio <= 1.0)) throw InputError("icp.outlier_rejection.trim_ratio must be in (0, 1]");
+  if (!(o.max_scale_step > 0.0 && o.max_scale_step < 1.0)) {
+    throw InputError("icp.error_minimizer.max_scale_step must be in (0, 1)");
+  }
+  if (!(o.min_scale_ratio > 0.0 && o.min_scale_ratio <= 1.0)) {
+    throw InputError("icp.error_minimizer.min_scale_ratio must be in (0, 1]");
+  }
+  if (!(o.max_scale_ratio >= 1.0 && std::isfinite(o.max_scale_ratio))) {
+    throw InputError("icp.error_minimizer.max_scale_ratio must be >= 1");
+  }
+  if (o.max_iterations < 1) throw InputError("icp.stop.max_iterations must be >= 1");
+  if (!(o.min_relative_translation_change >= 0.0)) {
+    throw InputError("icp.stop.min_relative_translation_change must be >= 0");
+  }
+  if (!(o.min_rotation_change >= 0.0)) throw InputError("icp.stop.min_rotation_change must be >= 0");
+  if (!(o.min_scale_change >= 0.0)) throw InputError("icp.stop.min_scale_change must be >= 0");
+  if (o.min_correspondences < 3) throw InputError("icp.outlier_rejection.min_correspondences must be >= 3");
+}
+
+Sim3 umeyama(const Cloud& src, const Cloud& dst, bool with_scale) {
+  const double n = static_cast<double>(src.cols());
+  const Eigen::Vector3d mu_s = src.rowwise().mean();
+  const Eigen::Vector3d mu_d = dst.rowwise().mean();
+  const Cloud cs = src.colwise() - mu_s;
+  const Cloud cd = dst.colwise() - mu_d;
+  const Eigen::Matrix3d sigma = cd * cs.transpose() / n;
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(sigma, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Vector3d d = Eigen::Vector3d::Ones();
+  if (svd.matrixU().determinant() * svd.matrixV().determinant() < 0) d(2) = -1;
+  const Eigen::Matrix3d r = svd.matrixU() * d.asDiagonal() * svd.matrixV().transpose();
+  double s = 1.0;
+  if (with_scale) {
+    const double var_s = cs.squaredNorm() / n;
+    if (var_s > 0.0) s = svd.singularValues().dot(d) / var_s;
+  }
+  return Sim3(s, r, mu_d - s * (r * mu_s));
+}
+
+namespace {
+
+// Where one level of iterations ended.
+struct LevelOutcome {
+  bool failed = false;     // too few correspondences or a numerical failure; message set
+  bool converged = false;  // the differential check passed
+  int iterations = 0;
+  int extrapolations = 0;
+  std::string message;
+};
+
+// Extrapolation (see iterateLevel): only when the last two steps point the same way within
+// about 18 degrees, and never more than this many times the last step.
+constexpr double kExtrapolationMinCosine = 0.95;
+constexpr double kExtrapolationMaxFactor = 8.0;
+
+// Iterates match / reject / minimise on `source` from `*current` until the differential check
+// passes at `tolerance` times the configured thresholds, or the iteration limit.
+LevelOutcome iterateLevel(const Cloud& source, const Cloud& target, const KdTree& tree, LazyNormals& normals,
+                          const IcpOptions& o, double tolerance, double target_radius, double min_scale,
+                          double max_scale, int iteration_offset, Sim3* current) {
+  LevelOutcome out;
+  const double max_log_step = std::log1p(o.max_scale_step);
+  const Eigen::Vector3d source_centroid = source.rowwise().mean();
+  Eigen::Matrix<double, 7, 1> previous_twist = Eigen::Matrix<double, 7, 1>::Zero();
+  bool has_previous = false, extrapolated = false;
+  for (; out.iterations < o.max_iterations; ++out.iterations) {
+    const int iter = iteration_offset + out.iterations;
+    const Cloud moved = current->apply(source);
+    const std::vector<Match> m = matchAndReject(moved, tree, o);
+    if (static_cast<int>(m.size()) < o.min_correspondences) {
+      out.failed = true;
+      out.message = "icp: only " + std::to_string(m.size()) + " correspondences at iteration " + std::to_string(iter) +
+                    " (need " + std::to_string(o.min_correspondences) + ")";
+      return out;
+    }
+    Sim3 step;
+    if (o.error_metric == ErrorMetric::kPointToPoint) {
+      Cloud y(3, static_cast<Eigen::Index>(m.size())), q(3, static_cast<Eigen::Index>(m.size()));
+      for (std::size_t k = 0; k < m.size(); ++k) {
+        y.col(static_cast<Eigen::Index>(k)) = moved.col(m[k].source);
+        q.col(static_cast<Eigen::Index>(k)) = target.col(m[k].target);
+      }
+      step = umeyama(y, q, o.estimate_scale);
+      const double ds = std::max(-max_log_step, std::min(max_log_step, std::log(step.scale())));
+      if (std::exp(ds) != step.scale()) {
+        // Scale clamped: re-fit the translation so the centroids still coincide.
+        const double s = std::exp(ds);
+        step = Sim3(s, step.rotation(), q.rowwise().mean() - s * (step.rotation() * y.rowwise().mean()));
+      }
+    } else {
+      normals.ensure(m);
+      step = pointToPlaneStep(moved, target, normals.normals(), m, o.estimate_scale, max_log_step);
+    }
+    Sim3 next = step * *current;
+    if (!next.matrix().allFinite()) {
+      out.failed = true;
+      out.message = "icp: numerical failure at iteration " + std::to_string(iter);
+      return out;
+    }
+    if (next.scale() < min_scale || next.scale() > max_scale) {
+      const double s = std::min(max_scale, std::max(min_scale, next.scale()));
+      // Keep the source centroid where the step put it while clamping the scale.
+      const Eigen::Vector3d at = next.apply(source_centroid);
+      next = Sim3(s, next.rotation(), at - s * (next.rotation() * source_centroid));
+    }
+    // Differential check on how far the step moved the source centroid, rotated and scaled.
+    const Eigen::Vector3d mc = moved.rowwise().mean();
+    const Eigen::Vector3d moved_by = step.apply(mc) - mc;
+    const double dt = moved_by.norm();
+    const double dr = step.rotationAngle();
+    const double dsc = std::abs(next.scale() / current->scale() - 1.0);
+    // The step as a 7-vector of displacements about the moved centroid (translation, rotation
+    // and log scale times the target radius), for the extrapolation below.
+    Eigen::Matrix<double, 7, 1> twist;
+    const Eigen::AngleAxisd aa(step.rotation());
+    twist << moved_by, aa.angle() * aa.axis() * target_radius, std::log(step.scale()) * target_radius;
+    *current = next;
+    if (dt <= tolerance * o.min_relative_translation_change * target_radius &&
+        dr <= tolerance * o.min_rotation_change && dsc <= tolerance * o.min_scale_change && !extrapolated) {
+      out.converged = true;
+      ++out.iterations;
+      return out;
+    }
+    extrapolated = false;
+    // Extrapolation: ICP creeps along shallow valleys with steps that shrink by a nearly
+    // constant ratio r in a nearly constant direction; then the rest of that geometric series,
+    // r / (1 - r) times the last step, is taken at once (capped). A wrong guess costs one
+    // iteration: the next step points back, and no extrapolation follows a reversal.
+    if (o.extrapolation && has_previous) {
+      const double n0 = previous_twist.norm(), n1 = twist.norm();
+      const double cosine = n0 > 0.0 && n1 > 0.0 ? previous_twist.dot(twist) / (n0 * n1) : 0.0;
+      const double r = n0 > 0.0 ? n1 / n0 : 1.0;
+      if (cosine > kExtrapolationMinCosine && r < 1.0) {
+        const double f = std::min(kExtrapolationMaxFactor, r / (1.0 - r));
+        const double s = std::exp(f * std::log(step.scale()));
+        const Eigen::Matrix3d rot = expSO3(f * aa.angle() * aa.axis());
+        const Eigen::Vector3d c = step.apply(mc);  // the moved centroid after this step
+        Sim3 extra(s, rot, c - s * (rot * c) + f * moved_by);
+        Sim3 jumped = extra * *current;
+        if (jumped.matrix().allFinite()) {
+          if (jumped.scale() < min_scale || jumped.scale() > max_scale) {
+            const double sc = std::min(max_scale, std::max(min_scale, jumped.scale()));
+            const Eigen::Vector3d at = jumped.apply(source_centroid);
+            jumped = Sim3(sc, jumped.rotation(), at - sc * (jumped.rotation() * source_centroid));
+          }
+          *current = jumped;
+          extrapolated = true;
+          ++out.extrapolations;
+        }
+      }
+    }
+    previous_twist = twist;
+    has_previous = !extrapolated;  // the step after a jump starts a new series
+  }
+  return out;
+}
+
+}  // namespace
+
+IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial, const IcpOptions& o) {
+  validate(o);
+  if (source.cols() == 0) throw InputError("icp: source cloud is empty");
+  if (target.cols() == 0) throw InputError("icp: target cloud is empty");
+  const KdTree tree(target);
+  return alignIcp(source, tree, initial, o);
+}
+
+IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initial, const IcpOptions& o) {
+  validate(o);
+  if (source_in.cols() == 0) throw InputError("icp: source cloud is empty");
+  MaxPointsOptions sampling;
+  sampling.max_points = o.max_source_points;
+  const Cloud source = maxPointsFilter(source_in, sampling);
+  const Cloud& target = tree.points();
+  if (target.cols() == 0) throw InputError("icp: target cloud is empty");
+  IcpResult result;
+  LazyNormals normals(tree, o.normal_neighbors);
+  const Eigen::Vector3d target_centroid = target.rowwise().mean();
+  const double target_radius = std::sqrt((target.colwise() - target_centroid).colwise().squaredNorm().mean());
+  const double min_scale = initial.scale() * o.min_scale_ratio;
+  const double max_scale = initial.scale() * o.max_scale_ratio;
+
+  Sim3 current = initial;
+  int iter = 0;
+  // Coarse levels: most of the travel from the initial guess on small samples (coarse_source_points,
+  // then four times as many, ...), each to a looser differential check; the whole sample then
+  // only has to settle the last digits.
+  if (o.coarse_source_points > 0) {
+    for (Eigen::Index n = o.coarse_source_points; 2 * n < source.cols(); n *= 4) {
+      MaxPointsOptions coarse_sampling;
+      coarse_sampling.max_points = static_cast<int>(n);
+      const Cloud coarse = maxPointsFilter(source, coarse_sampling);
+      const LevelOutcome c = iterateLevel(coarse, target, tree, normals, o, kCoarseToleranceFactor, target_radius,
+                                          min_scale, max_scale, iter, &current);
+      iter += c.iterations;
+      // A failed coarse level (e.g. too few correspondences on a small sample) leaves the
+      // decision to the larger samples, from the last good pose.
+    }
+  }
+  const LevelOutcome fine =
+      iterateLevel(source, target, tree, normals, o, 1.0, target_radius, min_scale, max_scale, iter, &current);
+  iter += fine.iterations;
+  if (fine.failed) {
+    result.status = Status::kIcpNotConverged;
+    result.message = fine.message;
+    result.transform = current;
+    result.iterations = iter;
+    return result;
+  }
+  const bool converged = fine.converged;
+
+  // Final correspondences at the converged pose.
+  const Cloud moved = current.apply(source);
+  const std::vector<Match> m = matchAndReject(moved, tree, o);
+  result.transform = current;
+  result.iterations = iter;
+  result.converged = converged;
+  result.correspondences = static_cast<int>(m.size());
+  Correspondences& c = result.matches;
+  c.source.resize(3, static_cast<Eigen::Index>(m.size()));
+  c.target.resize(3, static_cast<Eigen::Index>(m.size()));
+  c.target_normals.resize(3, static_cast<Eigen::Index>(m.size()));
+  // Point-to-plane uses them; the covariance's observability check needs them for both metrics.
+  normals.ensure(m);
+  double sum_d2 = 0.0;
+  for (std::size_t k = 0; k < m.size(); ++k) {
+    const auto col = static_cast<Eigen::Index>(k);
+    c.source.col(col) = source.col(m[k].source);
+    c.target.col(col) = target.col(m[k].target);
+    c.target_normals.col(col) = normals.normals().col(m[k].target);
+    sum_d2 += m[k].d2;
+  }
+  result.fitness_rmse = m.empty() ? 0.0 : std::sqrt(sum_d2 / static_cast<double>(m.size()));
+  if (static_cast<int>(m.size()) < o.min_correspondences) {
+    result.status = Status::kIcpNotConverged;
+    result.message = "icp: too few correspondences at the final pose";
+  } else if (!converged) {
+    result.status = Status::kIcpNotConverged;
+    result.message = "icp: no convergence within " + std::to_string(o.max_iterations) + " iterations on the full sample";
+  } else {
+    result.status = Status::kOk;
+    result.message = "icp converged in " + std::to_string(iter) + " iterations";
+  }
+  return result;
+}
+
+}  // namespace pcr_pro
