@@ -412,18 +412,28 @@ void sweep(Output& out, const SweepConfig& sc, std::FILE* headline) {
           Row r;
           r.method = kOurs;
           r.sparsity = fraction;  // the outlier fraction, in this table
-          const RelativePoseResult pose = keyframePairPose(mixed, target.camera, source.camera, defaults.relative_pose);
-          const KeyframeGuess guess = pose.status == Status::kOk
-                                          ? keyframeGuess(source, *kf_s, target, *kf_t, mixed, pose, defaults)
-                                          : KeyframeGuess();
-          if (pose.status != Status::kOk || guess.scale.status != Status::kOk) {
-            r.status = statusName(pose.status != Status::kOk ? pose.status : guess.scale.status);
+          FrontEndResult front;
+          CandidatePair pair;
+          pair.source = kf_s;
+          pair.target = kf_t;
+          pair.matches = mixed;
+          pair.pose = keyframePairPose(mixed, target.camera, source.camera, defaults.relative_pose);
+          front.verified = pair.pose.status == Status::kOk ? 1 : 0;
+          front.pairs.push_back(pair);
+          const KeyframeEstimate guess = front.verified ? SimilarityInitializer(defaults).run(source, target, front)
+                                                        : KeyframeEstimate();
+          if (pair.pose.status != Status::kOk || guess.status != Status::kOk) {
+            r.status = statusName(pair.pose.status != Status::kOk ? pair.pose.status : guess.status);
             r.err = Errors{180.0, 1e9, 1e9};
             r.ms = nowMs() - t0;
           } else {
-            RegistrationOptions reg = defaults.registration;
-            reg.icp.estimate_scale = defaults.merge.refine_scale;
-            const RegistrationReport rep = registerClouds(source.cloud, target.cloud, guess.initial, reg);
+            MapRegistration registration(defaults.registration, defaults.merge.refine_scale);
+            registration.setClouds(source.cloud, target.cloud);
+            const Refinement refined = registration.refine(guess.estimate, guess.matches);
+            RegistrationReport rep;
+            rep.status = refined.status;
+            rep.message = refined.message;
+            rep.transform = refined.estimate;
             r = fromReport(rep, truth.target_source, extent, nowMs() - t0);
             r.method = kOurs;
             r.sparsity = fraction;

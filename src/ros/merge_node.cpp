@@ -23,6 +23,7 @@ std::uint8_t statusCode(Status s) {
     case Status::kIcpNotConverged: return Response::ICP_NOT_CONVERGED;
     case Status::kDegenerate: return Response::DEGENERATE;
     case Status::kInvalidInput: return Response::INVALID_INPUT;
+    case Status::kNoOverlap: return Response::NO_OVERLAP;
   }
   return Response::INVALID_INPUT;
 }

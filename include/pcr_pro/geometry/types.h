@@ -30,6 +30,7 @@ enum class Status {
   kIcpNotConverged,
   kDegenerate,
   kInvalidInput,
+  kNoOverlap,  ///< the aligned maps share too little of their clouds: refused, not merged
 };
 
 /// @return the contract name of a status, e.g. "NOT_ENOUGH_MATCHES".

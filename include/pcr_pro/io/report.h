@@ -6,6 +6,7 @@
 
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "pcr_pro/geometry/sim3.h"
 #include "pcr_pro/geometry/types.h"
@@ -21,6 +22,16 @@ struct StageTimings {
   double icp = 0.0;
   double covariance = 0.0;
   double total = 0.0;
+};
+
+/// One keyframe pair of a merge and what became of it.
+struct KeyframePairReport {
+  long source_keyframe = 0;
+  long target_keyframe = 0;
+  int inliers = 0;        ///< relative-pose inliers
+  int depth_matches = 0;  ///< inliers with depth on both sides
+  bool used = false;      ///< part of the keyframe estimate
+  std::string note;       ///< how it was used, or why not
 };
 
 /// Everything a registration reports. Optional parts are absent when the run stopped early.
@@ -40,6 +51,14 @@ struct RegistrationReport {
   std::optional<bool> scale_difference_detected;
   std::optional<double> detected_scale_ratio;
   int icp_iterations = 0;
+  // --- the merge's keyframe estimate and the refinement's verdict (pcr_pro_merge, node)
+  std::optional<Sim3> keyframe_transform;           ///< keyframe-only S_target_source
+  std::optional<Matrix6d> keyframe_covariance;      ///< its 6x6 covariance (same convention)
+  std::optional<double> keyframe_scale_stddev;      ///< its scale's standard deviation [-]
+  std::optional<bool> refinement_kept;              ///< the refined estimate is the result
+  std::optional<double> refinement_chi2;            ///< squared Mahalanobis distance refined vs keyframe [-]
+  std::optional<double> overlap;                    ///< overlap of the aligned maps [-]
+  std::vector<KeyframePairReport> keyframe_pairs;   ///< every verified keyframe pair
   StageTimings timings;
 };
 

@@ -43,16 +43,17 @@ namespace pcr_pro {
 enum class CovarianceModel {
   kClosedForm,  ///< Censi's closed form, independent isotropic noise
   kCalibrated,  ///< closed form inflated by the split-sample re-registration factor
+  kBlocks,      ///< closed form, covering the spread between spatial blocks (blockSpreadCovariance())
 };
 
-/// @return "closed_form" or "calibrated"
+/// @return "closed_form", "calibrated" or "blocks"
 const char* covarianceModelName(CovarianceModel model);
 /// @return false when the name is unknown
 bool parseCovarianceModel(const std::string& name, CovarianceModel* model);
 
 /// Options of the covariance stage.
 struct CovarianceOptions {
-  CovarianceModel model = CovarianceModel::kCalibrated;
+  CovarianceModel model = CovarianceModel::kBlocks;
   /// Random splits into two halves averaged for the calibration factor (calibrated model) (>= 1).
   int calibration_splits = 8;
   /// The calibration re-registers at most this many correspondences (a random subset, split in
@@ -88,6 +89,36 @@ struct CovarianceResult {
   double condition_number = 0.0;            ///< of the normalised geometric information [-]
   int correspondences = 0;
 };
+
+/// The spread of an estimate between spatial blocks of its correspondences (and anchor groups).
+struct BlockSpread {
+  bool ok = false;
+  int clusters = 0;  ///< spatial blocks plus anchor groups
+  /// Cluster-robust (sandwich) covariance H⁻¹ (K/(K-1) Σ g_k g_kᵀ) H⁻¹ of δ = (x y z rx ry rz log s),
+  /// a left perturbation about the target frame's origin (similarity_fit.h convention).
+  Matrix7d sandwich = Matrix7d::Zero();
+  Matrix7d information = Matrix7d::Zero();  ///< H, the model's information of δ
+};
+
+/**
+ * @brief How much the estimate moves between parts of the data: the correspondences are split
+ * into up to 16 spatial blocks (median splits of the matched points along their widest axis,
+ * at least 50 correspondences each); each block's gradient of the weighted least-squares cost at
+ * the solution, and each anchor group's, enter a cluster-robust sandwich. Errors that are not
+ * independent per point (map distortion, scale drift, partial-overlap bias, a block sampled
+ * unevenly) make blocks disagree, and the sandwich grows with them; on independent noise it
+ * equals the closed form.
+ * @param[in] matches final correspondences (with weights, residual_scale and spacing from alignIcp())
+ * @param[in] transform the solution S_target_source
+ * @param[in] metric the ICP's error metric
+ * @param[in] with_scale the scale was estimated
+ * @param[in] anchors anchor matches of the solution (may be null)
+ */
+BlockSpread blockSpreadCovariance(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
+                                  bool with_scale, const std::vector<PointMatch3>* anchors = nullptr);
+
+/// @return the 7x7 covariance of δ with the log scale as 7th variable, from a CovarianceResult
+Matrix7d logScaleCovariance(const CovarianceResult& result, double scale);
 
 /**
  * @brief Closed-form covariance of an ICP result.

@@ -8,6 +8,9 @@
 
 #include <string>
 
+#include <vector>
+
+#include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/geometry/sim3.h"
 #include "pcr_pro/geometry/types.h"
 
@@ -17,6 +20,17 @@ class KdTree;
 
 /// Error minimised by the ICP step.
 enum class ErrorMetric { kPointToPoint, kPointToPlane };
+
+/// Robust kernel on the ICP residuals (IRLS weights).
+enum class RobustKernel {
+  kNone,    ///< least squares
+  kCauchy,  ///< w = 1 / (1 + (r / (width σ))²): far residuals lose their pull, never their sign
+};
+
+/// @return "none" or "cauchy"
+const char* robustKernelName(RobustKernel kernel);
+/// @return false when the name is unknown
+bool parseRobustKernel(const std::string& name, RobustKernel* kernel);
 
 /// @return "point_to_point" or "point_to_plane"
 const char* errorMetricName(ErrorMetric metric);
@@ -40,11 +54,30 @@ struct IcpOptions {
   int coarse_source_points = 2000;
   // --- matcher
   int normal_neighbors = 10;  ///< neighbours used to estimate target normals (>= 3)
-  // --- outlier rejection
-  /// Correspondences farther apart than this are rejected [target units]; 0 = no limit.
+  // --- outlier rejection (overlap-aware: a partial overlap must not pull the estimate)
+  /// Correspondences farther apart than this are rejected [target units]; 0 = no fixed limit.
   double max_correspondence_distance = 0.0;
-  /// Fraction of the closest correspondences kept after the distance check, in (0, 1] [-].
-  double trim_ratio = 0.8;
+  /// Reciprocal check: a correspondence source i -> target j is kept only when i is, within
+  /// reciprocal_tolerance point spacings, as close to j as j's nearest source point is. A source
+  /// point beyond the target's border (no overlap there) matches a border point whose own nearest
+  /// source point is much closer: it is rejected instead of pulling the map inwards.
+  bool reciprocal = true;
+  /// Slack of the reciprocal check [point spacings], >= 0. The spacing is the larger of the
+  /// target's and the (sampled, scaled) source's median nearest-neighbour distance.
+  double reciprocal_tolerance = 1.5;
+  /// Adaptive distance gate: correspondences farther apart than this many robust distance scales
+  /// (1.4826 x the median correspondence distance, at least the point spacing) are rejected; the
+  /// gate follows the registration down to the noise level as it converges [-]; 0 = off.
+  double adaptive_distance_factor = 4.0;
+  /// Fraction of the closest correspondences kept after the checks above, in (0, 1] [-];
+  /// 1 = no trimming. A trim ratio above the true overlap keeps non-overlapping points: the
+  /// checks above are the overlap-aware way, trimming stays for clouds known to overlap fully.
+  double trim_ratio = 1.0;
+  /// IRLS kernel on the residuals, scaled by their robust spread (1.4826 MAD, floored at a
+  /// hundredth of the point spacing).
+  RobustKernel robust_kernel = RobustKernel::kCauchy;
+  /// Kernel width in robust spreads [-], > 0 (2.385: 95 % efficiency on Gaussian residuals).
+  double kernel_width = 2.385;
   // --- error minimisation
   ErrorMetric error_metric = ErrorMetric::kPointToPlane;
   /// Estimate a similarity (scale) instead of a rigid transform.
@@ -81,6 +114,13 @@ struct Correspondences {
   /// Unit normals at the target points (from the target's k nearest neighbours); may be empty
   /// when built by hand, then the covariance estimates them on the matched targets.
   Cloud target_normals;
+  /// IRLS weight of each correspondence at the final pose, in (0, 1]; empty = all 1.
+  Eigen::VectorXd weights;
+  /// Robust spread of the residuals at the final pose (point-to-plane: of n·(y - q); point-to-
+  /// point: per coordinate) [target units]; 0 when unknown.
+  double residual_scale = 0.0;
+  /// Median nearest-neighbour spacing of the target cloud [target units]; 0 when unknown.
+  double spacing = 0.0;
 };
 
 /// Outcome of an ICP run.
@@ -107,9 +147,19 @@ struct IcpResult {
  */
 IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial, const IcpOptions& options);
 
-/// As above, on a k-d tree of the target built by the caller (tree.points() is the target),
-/// for callers that query the target again afterwards.
-IcpResult alignIcp(const Cloud& source, const KdTree& target_tree, const Sim3& initial, const IcpOptions& options);
+/**
+ * @brief As above, on a k-d tree of the target built by the caller (tree.points() is the target),
+ * for callers that query the target again afterwards, optionally with anchor matches.
+ * @param[in] anchors 3D-3D matches (e.g. from keyframes) added to every step with their own
+ *   covariance and a Cauchy kernel on their Mahalanobis distance; may be null. The overlap does not
+ *   bias them, so they hold the solution where the cloud geometry is weak.
+ */
+IcpResult alignIcp(const Cloud& source, const KdTree& target_tree, const Sim3& initial, const IcpOptions& options,
+                   const std::vector<PointMatch3>* anchors = nullptr);
+
+/// Median distance of (a sample of at most 2000) points of the tree to their nearest other point
+/// [cloud units]; 0 for fewer than two points.
+double medianSpacing(const KdTree& tree);
 
 /**
  * @brief Closed-form similarity (Umeyama) between paired points: dst ≈ s R src + t.
@@ -117,5 +167,8 @@ IcpResult alignIcp(const Cloud& source, const KdTree& target_tree, const Sim3& i
  * @return the best transform in the least-squares sense
  */
 Sim3 umeyama(const Cloud& src, const Cloud& dst, bool with_scale);
+
+/// Weighted Umeyama: minimises Σ wᵢ |dst_i - (s R src_i + t)|² (weights >= 0, not all zero).
+Sim3 umeyama(const Cloud& src, const Cloud& dst, const Eigen::VectorXd& weights, bool with_scale);
 
 }  // namespace pcr_pro

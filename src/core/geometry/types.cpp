@@ -5,7 +5,7 @@
 
 namespace pcr_pro {
 namespace {
-constexpr std::array<std::pair<Status, const char*>, 7> kStatusNames{{
+constexpr std::array<std::pair<Status, const char*>, 8> kStatusNames{{
     {Status::kOk, "OK"},
     {Status::kNotEnoughMatches, "NOT_ENOUGH_MATCHES"},
     {Status::kRelativePoseFailed, "RELATIVE_POSE_FAILED"},
@@ -13,6 +13,7 @@ constexpr std::array<std::pair<Status, const char*>, 7> kStatusNames{{
     {Status::kIcpNotConverged, "ICP_NOT_CONVERGED"},
     {Status::kDegenerate, "DEGENERATE"},
     {Status::kInvalidInput, "INVALID_INPUT"},
+    {Status::kNoOverlap, "NO_OVERLAP"},
 }};
 }  // namespace
 

@@ -56,6 +56,30 @@ std::string toYaml(const RegistrationReport& r) {
   if (r.condition_number) os << "condition_number: " << *r.condition_number << "\n";
   if (r.noise_stddev) os << "noise_stddev: " << *r.noise_stddev << "\n";
   if (r.icp_iterations > 0) os << "icp_iterations: " << r.icp_iterations << "\n";
+  if (r.overlap) os << "overlap: " << *r.overlap << "\n";
+  if (r.keyframe_transform) {
+    const Eigen::Quaterniond q = r.keyframe_transform->quaternion();
+    const Eigen::Vector3d& t = r.keyframe_transform->translation();
+    os << "keyframe_estimate:\n";
+    os << "  scale: " << r.keyframe_transform->scale() << "\n";
+    os << "  rotation: [" << q.x() << ", " << q.y() << ", " << q.z() << ", " << q.w() << "]\n";
+    os << "  translation: [" << t.x() << ", " << t.y() << ", " << t.z() << "]\n";
+    if (r.keyframe_scale_stddev) os << "  scale_stddev: " << *r.keyframe_scale_stddev << "\n";
+    if (r.keyframe_covariance) writeMatrix(os, "  covariance", *r.keyframe_covariance);
+  }
+  if (r.refinement_kept) {
+    os << "refinement: {kept: " << (*r.refinement_kept ? "true" : "false");
+    if (r.refinement_chi2) os << ", chi2: " << *r.refinement_chi2;
+    os << "}\n";
+  }
+  if (!r.keyframe_pairs.empty()) {
+    os << "keyframe_pairs:\n";
+    for (const KeyframePairReport& p : r.keyframe_pairs) {
+      os << "  - {source: " << p.source_keyframe << ", target: " << p.target_keyframe << ", inliers: " << p.inliers
+         << ", depth_matches: " << p.depth_matches << ", used: " << (p.used ? "true" : "false")
+         << ", note: " << quoted(p.note) << "}\n";
+    }
+  }
   os << std::setprecision(4);
   const StageTimings& t = r.timings;
   os << "timings_ms: {features: " << t.features << ", relative_pose: " << t.relative_pose << ", scale: " << t.scale

@@ -1,6 +1,7 @@
+#include <cmath>
 #include <string>
 
-#include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/merge/merge_options.h"
 #include "io/yaml_block.h"
 
 namespace pcr_pro {
@@ -82,6 +83,8 @@ MergeGateOptions loadGates(const YAML::Node& node, const std::string& origin) {
   Block b(node, "merge", origin);
   b.get("refine_scale", &o.refine_scale);
   b.get("max_candidate_pairs", &o.max_candidate_pairs);
+  b.get("pair_consistency_chi2", &o.pair_consistency_chi2);
+  b.get("refinement_agreement_chi2", &o.refinement_agreement_chi2);
   b.get("overlap_distance_factor", &o.overlap_distance_factor);
   b.get("min_overlap", &o.min_overlap);
   b.get("max_scale_disagreement", &o.max_scale_disagreement);
@@ -106,6 +109,12 @@ InputLimits loadLimits(const YAML::Node& node, const std::string& origin) {
 
 void validate(const MergeGateOptions& o) {
   if (!(o.max_candidate_pairs >= 0)) throw InputError("merge.max_candidate_pairs must be >= 0");
+  if (!(o.pair_consistency_chi2 > 0.0) || !std::isfinite(o.pair_consistency_chi2)) {
+    throw InputError("merge.pair_consistency_chi2 must be > 0");
+  }
+  if (!(o.refinement_agreement_chi2 > 0.0) || !std::isfinite(o.refinement_agreement_chi2)) {
+    throw InputError("merge.refinement_agreement_chi2 must be > 0");
+  }
   if (!(o.overlap_distance_factor > 0.0)) throw InputError("merge.overlap_distance_factor must be > 0");
   if (!(o.min_overlap >= 0.0 && o.min_overlap <= 1.0)) throw InputError("merge.min_overlap must be in [0, 1]");
   if (!(o.max_scale_disagreement > 0.0)) throw InputError("merge.max_scale_disagreement must be > 0");

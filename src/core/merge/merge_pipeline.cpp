@@ -1,14 +1,12 @@
 #include "pcr_pro/merge/merge_pipeline.h"
 
-#include <algorithm>
+#include <Eigen/Cholesky>
+
 #include <chrono>
 #include <cmath>
 #include <sstream>
-#include <vector>
 
-#include "pcr_pro/registration/cloud_registration.h"
-#include "pcr_pro/registration/filters.h"
-#include "pcr_pro/geometry/kdtree.h"
+#include "pcr_pro/registration/scale_detection.h"
 
 namespace pcr_pro {
 namespace {
@@ -26,123 +24,52 @@ std::string fmt(double v, int precision = 3) {
   return os.str();
 }
 
-// A keyframe and its SIFT features.
-struct KeyframeEntry {
-  const MapKeyframe* keyframe = nullptr;
-  KeyframeFeatures features;
-};
-
-// Keyframes of a map to consider: the requested one, or all of them.
-std::vector<KeyframeEntry> selectKeyframes(const AgentMap& map, const std::optional<long>& id, const char* which,
-                                           std::string* error) {
-  std::vector<KeyframeEntry> out;
-  for (const MapKeyframe& kf : map.keyframes) {
-    if (!id || kf.id == *id) out.push_back(KeyframeEntry{&kf, {}});
-  }
-  if (out.empty()) {
-    *error = id ? std::string(which) + " keyframe " + std::to_string(*id) + " is not in the " + which + " map"
-                : std::string(which) + " map has no keyframes";
-  }
-  return out;
-}
-
+// What the data does that the pipeline cannot use (a caller's mistake would be an exception).
 std::string checkMap(const AgentMap& map, const char* which) {
   if (!map.camera.valid()) return std::string(which) + " map: invalid camera intrinsics or image size";
   if (map.cloud.cols() == 0) return std::string(which) + " map: empty cloud";
   for (const MapKeyframe& kf : map.keyframes) {
-    if (kf.image.empty() || kf.image.type() != CV_8UC1) {
-      return std::string(which) + " keyframe " + std::to_string(kf.id) + ": image missing or not 8-bit grey";
-    }
+    const std::string name = std::string(which) + " keyframe " + std::to_string(kf.id);
+    if (kf.image.empty() || kf.image.type() != CV_8UC1) return name + ": image missing or not 8-bit grey";
     if (kf.image.cols != map.camera.width || kf.image.rows != map.camera.height) {
-      return std::string(which) + " keyframe " + std::to_string(kf.id) + ": image size differs from the camera's";
+      return name + ": image size differs from the camera's";
     }
-    if (!(kf.pose.scale() > 0.0) || !kf.pose.matrix().allFinite()) {
-      return std::string(which) + " keyframe " + std::to_string(kf.id) + ": invalid pose";
-    }
+    if (!(kf.pose.scale() > 0.0) || !kf.pose.matrix().allFinite()) return name + ": invalid pose";
   }
   return "";
 }
 
-// Median distance of target points to their nearest other target point (a sample of them).
-double medianSpacing(const KdTree& tree) {
-  const Cloud& pts = tree.points();
-  const Eigen::Index n = pts.cols();
-  const Eigen::Index step = std::max<Eigen::Index>(1, n / 2000);
-  std::vector<double> d;
-  std::vector<Eigen::Index> idx;
-  std::vector<double> d2;
-  for (Eigen::Index i = 0; i < n; i += step) {
-    tree.knn(pts.col(i), 2, &idx, &d2);
-    if (d2.size() == 2) d.push_back(std::sqrt(d2[1]));
-  }
-  if (d.empty()) return 0.0;
-  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
-  return d[d.size() / 2];
+// The 6x6 pose covariance (marginal of the 7x7) and its information; false when not finite or
+// not positive definite.
+bool poseCovariance(const Matrix7d& cov7, Matrix6d* cov, Matrix6d* info) {
+  *cov = 0.5 * (cov7.topLeftCorner<6, 6>() + cov7.topLeftCorner<6, 6>().transpose());
+  const Eigen::LDLT<Matrix6d> ldlt(*cov);
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return false;
+  *info = ldlt.solve(Matrix6d::Identity());
+  *info = 0.5 * (*info + info->transpose()).eval();
+  return cov->allFinite() && info->allFinite();
 }
 
-// Source points sampled by the overlap gate: the fraction is then known to about ±0.7 %.
-constexpr Eigen::Index kOverlapSamples = 5000;
-
-// Fraction of (a sample of) the moved source points within `radius` of a target point.
-double overlapFraction(const Cloud& moved_source, const KdTree& target_tree, double radius) {
-  const Eigen::Index n = moved_source.cols();
-  if (n == 0) return 0.0;
-  const Eigen::Index step = std::max<Eigen::Index>(1, n / kOverlapSamples);
-  Eigen::Index inside = 0, total = 0;
-  const double r2 = radius * radius;
-  for (Eigen::Index i = 0; i < n; i += step, ++total) {
-    double d2 = 0.0;
-    if (target_tree.nearest(moved_source.col(i), &d2) >= 0 && d2 <= r2) ++inside;
+void reportPairs(const KeyframeEstimate& kf, RegistrationReport* rep) {
+  for (const PairEvidence& e : kf.pairs) {
+    KeyframePairReport p;
+    p.source_keyframe = e.source_keyframe;
+    p.target_keyframe = e.target_keyframe;
+    p.inliers = e.inliers;
+    p.depth_matches = e.depth_matches;
+    p.used = e.used;
+    p.note = e.note;
+    rep->keyframe_pairs.push_back(p);
   }
-  return static_cast<double>(inside) / static_cast<double>(total);
 }
 
 }  // namespace
 
-RelativePoseResult keyframePairPose(const FeatureMatches& matches, const PinholeCamera& target_camera,
-                                    const PinholeCamera& source_camera, const RelativePoseOptions& options) {
-  std::vector<Eigen::Vector3d> bt, bs;
-  bt.reserve(matches.pixels_a.size());
-  bs.reserve(matches.pixels_a.size());
-  for (std::size_t k = 0; k < matches.pixels_a.size(); ++k) {
-    bt.push_back(target_camera.bearing(matches.pixels_a[k].x(), matches.pixels_a[k].y()));
-    bs.push_back(source_camera.bearing(matches.pixels_b[k].x(), matches.pixels_b[k].y()));
-  }
-  const double focal = 0.5 * (source_camera.focal() + target_camera.focal());
-  return estimateRelativePose(bt, bs, focal, options);
-}
+MergePipeline::MergePipeline(const MergeOptions& options)
+    : options_(options), front_end_(options), initializer_(options), gates_(options.merge) {}
 
-KeyframeGuess keyframeGuess(const AgentMap& source, const MapKeyframe& source_keyframe, const AgentMap& target,
-                            const MapKeyframe& target_keyframe, const FeatureMatches& matches,
-                            const RelativePoseResult& pose, const MergeOptions& options) {
-  KeyframeGuess g;
-  const KeyframeDepth depth_s(source_keyframe, source.camera, source.cloud, options.keyframe_depth);
-  const KeyframeDepth depth_t(target_keyframe, target.camera, target.cloud, options.keyframe_depth);
-  std::vector<Eigen::Vector3d> ps, pt;
-  for (int k : pose.inliers) {
-    Eigen::Vector3d a, b;
-    const auto ku = static_cast<std::size_t>(k);
-    if (depth_t.pointAt(matches.pixels_a[ku].x(), matches.pixels_a[ku].y(), &a) &&
-        depth_s.pointAt(matches.pixels_b[ku].x(), matches.pixels_b[ku].y(), &b)) {
-      pt.push_back(a);
-      ps.push_back(b);
-    }
-  }
-  g.depth_matches = static_cast<int>(ps.size());
-  g.scale = estimateScale(ps, pt, pose.rotation, pose.translation_direction, options.scale_estimation);
-  if (g.scale.status != Status::kOk) return g;
-  // Target camera -> target map, keyframe similarity, source map -> source camera. Camera
-  // points are in map units (P = pose scale * p_cam).
-  const Sim3 keyframe_sim(g.scale.scale, pose.rotation, g.scale.lambda * pose.translation_direction);
-  const Sim3 cam_t(1.0, target_keyframe.pose.rotation(), target_keyframe.pose.translation());
-  const Sim3 cam_s(1.0, source_keyframe.pose.rotation(), source_keyframe.pose.translation());
-  g.initial = cam_t * keyframe_sim * cam_s.inverse();
-  return g;
-}
-
-MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const MergeRequest& request,
-                      const MergeOptions& options) {
-  validate(options);
+MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target, const MergeRequest& request,
+                                 const std::string& source_key, const std::string& target_key) {
   const auto t_total = Clock::now();
   MergeResult out;
   RegistrationReport& rep = out.report;
@@ -153,164 +80,121 @@ MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const Merg
     rep.timings.total = msSince(t_total);
     return out;
   };
-
   for (const auto& [map, which] : {std::pair<const AgentMap*, const char*>{&source, "source"}, {&target, "target"}}) {
     const std::string problem = checkMap(*map, which);
     if (!problem.empty()) return finish(Status::kInvalidInput, problem);
   }
-  std::string error;
-  std::vector<KeyframeEntry> src_kfs = selectKeyframes(source, request.source_keyframe, "source", &error);
-  if (src_kfs.empty()) return finish(Status::kInvalidInput, error);
-  std::vector<KeyframeEntry> tgt_kfs = selectKeyframes(target, request.target_keyframe, "target", &error);
-  if (tgt_kfs.empty()) return finish(Status::kInvalidInput, error);
 
-  // --- features: SIFT once per keyframe, then FLANN matching per candidate pair
-  auto t = Clock::now();
-  std::vector<KeyframeEntry*> all;
-  for (auto& e : src_kfs) all.push_back(&e);
-  for (auto& e : tgt_kfs) all.push_back(&e);
-#pragma omp parallel for schedule(dynamic)
-  for (std::size_t i = 0; i < all.size(); ++i) {
-    all[i]->features = extractFeatures(all[i]->keyframe->image, options.matching);
-  }
-  struct Candidate {
-    const KeyframeEntry* source = nullptr;
-    const KeyframeEntry* target = nullptr;
-    FeatureMatches matches;  // a = target, b = source
-    RelativePoseResult pose;
-  };
-  // Pairs to match in full: all of them, or the max_candidate_pairs with the most votes.
-  std::vector<std::pair<std::size_t, std::size_t>> pairs;
-  for (std::size_t i = 0; i < src_kfs.size(); ++i) {
-    for (std::size_t j = 0; j < tgt_kfs.size(); ++j) pairs.emplace_back(i, j);
-  }
-  diag.keyframe_pairs = static_cast<int>(pairs.size());
-  const auto max_pairs = static_cast<std::size_t>(options.merge.max_candidate_pairs);
-  if (max_pairs > 0 && pairs.size() > max_pairs) {
-    std::vector<const KeyframeFeatures*> sf, tf;
-    for (const auto& e : src_kfs) sf.push_back(&e.features);
-    for (const auto& e : tgt_kfs) tf.push_back(&e.features);
-    const std::vector<std::vector<int>> votes = keyframePairVotes(sf, tf, options.matching);
-    std::stable_sort(pairs.begin(), pairs.end(), [&](const auto& a, const auto& b) {
-      return votes[a.first][a.second] > votes[b.first][b.second];
-    });
-    pairs.resize(max_pairs);
-  }
-  // Sequential: FLANN's randomised trees draw from std::rand().
-  std::vector<Candidate> candidates(pairs.size());
-  for (std::size_t k = 0; k < pairs.size(); ++k) {
-    Candidate& c = candidates[k];
-    c.source = &src_kfs[pairs[k].first];
-    c.target = &tgt_kfs[pairs[k].second];
-    c.matches = matchFeatures(c.target->features, c.source->features, options.matching);
-  }
-  rep.timings.features = msSince(t);
-  diag.candidate_pairs = static_cast<int>(candidates.size());
-
-  // --- relative pose per pair with enough matches; keep the most verified inliers
-  t = Clock::now();
-  Candidate* best = nullptr;
-  Candidate* most_matches = nullptr;
-  for (Candidate& c : candidates) {
-    if (!most_matches || c.matches.size() > most_matches->matches.size()) most_matches = &c;
-    if (static_cast<int>(c.matches.size()) < options.matching.min_matches) {
-      c.pose.status = Status::kNotEnoughMatches;
-      c.pose.message = std::to_string(c.matches.size()) + " feature matches < matching.min_matches " +
-                       std::to_string(options.matching.min_matches);
-      continue;
-    }
-    c.pose = keyframePairPose(c.matches, target.camera, source.camera, options.relative_pose);
-    if (c.pose.status == Status::kOk && (!best || c.pose.inlier_count > best->pose.inlier_count)) best = &c;
-  }
-  rep.timings.relative_pose = msSince(t);
-  if (!best) {
-    const Candidate& c = *most_matches;
+  // 1. Keyframe front end.
+  const FrontEndResult front = front_end_.run(source, target, request, source_key, target_key);
+  rep.timings.features = front.features_ms;
+  rep.timings.relative_pose = front.relative_pose_ms;
+  diag.keyframe_pairs = front.keyframe_pairs;
+  diag.candidate_pairs = static_cast<int>(front.pairs.size());
+  diag.verified_pairs = front.verified;
+  diag.features_computed = front.features_computed;
+  diag.features_cached = front.features_cached;
+  if (front.status != Status::kOk) return finish(front.status, front.message);
+  if (front.verified == 0) {
+    const CandidatePair& c = front.pairs.front();
     Status status = c.pose.status == Status::kOk ? Status::kRelativePoseFailed : c.pose.status;
     if (status == Status::kDegenerate) status = Status::kRelativePoseFailed;
-    rep.source_keyframe = c.source->keyframe->id;
-    rep.target_keyframe = c.target->keyframe->id;
+    rep.source_keyframe = c.source->id;
+    rep.target_keyframe = c.target->id;
     diag.feature_matches = static_cast<int>(c.matches.size());
-    return finish(status, "no keyframe pair verified (" + std::to_string(candidates.size()) +
-                              " tried); best pair source " + std::to_string(c.source->keyframe->id) + " / target " +
-                              std::to_string(c.target->keyframe->id) + ": " + c.pose.message);
+    return finish(status, "no keyframe pair verified (" + std::to_string(front.pairs.size()) +
+                              " tried); best pair source " + std::to_string(c.source->id) + " / target " +
+                              std::to_string(c.target->id) + ": " + c.pose.message);
   }
-  const MapKeyframe& kf_s = *best->source->keyframe;
-  const MapKeyframe& kf_t = *best->target->keyframe;
-  rep.source_keyframe = kf_s.id;
-  rep.target_keyframe = kf_t.id;
-  diag.feature_matches = static_cast<int>(best->matches.size());
-  diag.relative_pose_inliers = best->pose.inlier_count;
 
-  // --- keyframe depth, the Kalman-filter scale and the initial map-to-map similarity
-  t = Clock::now();
-  const KeyframeGuess guess = keyframeGuess(source, kf_s, target, kf_t, best->matches, best->pose, options);
-  const ScaleEstimate& scale = guess.scale;
-  rep.timings.scale = msSince(t);
-  diag.depth_matches = guess.depth_matches;
-  diag.kalman_scale = scale.scale;
-  diag.kalman_scale_stddev = scale.scale_stddev;
-  diag.kalman_inliers = scale.inliers;
-  if (scale.status != Status::kOk) {
-    return finish(scale.status, "scale from " + std::to_string(guess.depth_matches) +
-                                    " inlier matches with depth on both sides (" +
-                                    std::to_string(best->pose.inlier_count) + " inliers): " + scale.message);
-  }
-  diag.initial = guess.initial;
+  // 2. Keyframe estimate from every verified pair.
+  const KeyframeEstimate kf = initializer_.run(source, target, front);
+  rep.timings.scale = kf.ms;
+  reportPairs(kf, &rep);
+  diag.used_pairs = kf.used_pairs;
+  diag.dropped_pairs = kf.dropped_pairs;
+  if (kf.status != Status::kOk) return finish(kf.status, kf.message);
+  const PairEvidence& anchor = kf.pairs[static_cast<std::size_t>(kf.anchor)];
+  rep.source_keyframe = anchor.source_keyframe;
+  rep.target_keyframe = anchor.target_keyframe;
+  diag.feature_matches = anchor.feature_matches;
+  diag.relative_pose_inliers = anchor.inliers;
+  diag.depth_matches = anchor.depth_matches;
+  diag.keyframe_matches = static_cast<int>(kf.matches.size());
+  diag.initial = kf.estimate;
+  diag.keyframe_covariance = kf.covariance;
+  diag.kalman_scale = kf.estimate.scale();
+  diag.kalman_scale_stddev = kf.estimate.scale() * std::sqrt(std::max(0.0, kf.covariance(6, 6)));
+  rep.keyframe_transform = kf.estimate;
+  rep.keyframe_covariance = kf.covariance.topLeftCorner<6, 6>();
+  rep.keyframe_scale_stddev = diag.kalman_scale_stddev;
 
-  // --- scale detection, filters, ICP with scale refinement, covariance
-  // The filters run once here: registration and the overlap gate share the filtered clouds.
-  RegistrationOptions reg_options = options.registration;
-  reg_options.icp.estimate_scale = options.merge.refine_scale;
-  reg_options.filters.steps.clear();
-  const StageTimings front = rep.timings;
-  const std::optional<long> sk = rep.source_keyframe, tk = rep.target_keyframe;
-  t = Clock::now();
-  const Cloud source_filtered = applyFilterChain(source.cloud, options.registration.filters);
-  const Cloud target_filtered = applyFilterChain(target.cloud, options.registration.filters);
-  const double filter_ms = msSince(t);
-  if (source_filtered.cols() == 0 || target_filtered.cols() == 0) {
-    return finish(Status::kInvalidInput, std::string("the filters removed every point of the ") +
-                                             (source_filtered.cols() == 0 ? "source" : "target") + " map cloud");
+  // 3. Refinement on the map clouds.
+  MapRegistration registration(options_.registration, options_.merge.refine_scale);
+  const std::string cloud_problem = registration.setClouds(source.cloud, target.cloud);
+  rep.timings.filters = registration.filterMs();
+  if (!cloud_problem.empty()) return finish(Status::kInvalidInput, cloud_problem);
+  auto t = Clock::now();
+  const ScaleDetectionResult detection =
+      detectScale(registration.source(), registration.target(), options_.registration.scale_detection);
+  rep.timings.scale += msSince(t);
+  rep.scale_difference_detected = detection.scale_difference_detected;
+  rep.detected_scale_ratio = detection.ratio;
+  const Refinement refinement = registration.refine(kf.estimate, kf.matches);
+  rep.timings.icp = refinement.ms_icp;
+  rep.timings.covariance = refinement.ms_covariance;
+  rep.icp_iterations = refinement.icp.iterations;
+  if (refinement.status == Status::kOk || refinement.status == Status::kDegenerate) {
+    rep.fitness_rmse = refinement.icp.fitness_rmse;
+    rep.correspondences = refinement.icp.correspondences;
+    rep.condition_number = refinement.closed_form.condition_number;
+    rep.noise_stddev = refinement.closed_form.noise_stddev;
   }
-  t = Clock::now();
-  const KdTree target_tree(target_filtered);  // shared by the ICP and the overlap gate
-  const double tree_ms = msSince(t);
-  rep = registerClouds(source_filtered, target_filtered, diag.initial, reg_options, &target_tree);
-  rep.timings.filters = filter_ms;
-  rep.timings.icp += tree_ms;
-  rep.source_keyframe = sk;
-  rep.target_keyframe = tk;
-  rep.timings.features = front.features;
-  rep.timings.relative_pose = front.relative_pose;
-  rep.timings.scale += front.scale;
-  if (!options.merge.refine_scale) rep.scale_stddev = scale.scale_stddev;
-  if (rep.status != Status::kOk && rep.status != Status::kDegenerate) return finish(rep.status, rep.message);
+  diag.block_spread_factor = refinement.block_spread_factor;
+  diag.refinement_status = refinement.status;
+  diag.refined = refinement.estimate;
+  diag.refined_covariance = refinement.covariance;
 
-  // --- quality gates against false merges
-  const Sim3& final_sim = *rep.transform;
-  const double correction = rotationDistance(final_sim.rotation(), diag.initial.rotation()) * 180.0 / M_PI;
-  if (correction > options.merge.max_icp_rotation_correction_deg) {
-    return finish(Status::kIcpNotConverged, "refused: ICP rotated the keyframe-based guess by " + fmt(correction) +
-                                                " deg > merge.max_icp_rotation_correction_deg " +
-                                                fmt(options.merge.max_icp_rotation_correction_deg));
+  // 4. Gates.
+  GateVerdict verdict = gates_.judge(kf, refinement, registration);
+  diag.overlap = verdict.overlap;
+  diag.refinement_kept = verdict.refinement_kept;
+  diag.refinement_chi2 = verdict.refinement_chi2;
+  rep.overlap = verdict.overlap;
+  rep.refinement_kept = verdict.refinement_kept;
+  rep.refinement_chi2 = verdict.refinement_chi2;
+  if (!options_.merge.refine_scale && verdict.refinement_kept) {
+    // Scale policy: the refinement kept the keyframe scale, which keeps its uncertainty.
+    verdict.covariance(6, 6) = kf.covariance(6, 6);
   }
-  const double disagreement = std::abs(final_sim.scale() / scale.scale - 1.0);
-  if (disagreement > options.merge.max_scale_disagreement) {
-    return finish(Status::kScaleFailed, "refused: ICP scale " + fmt(final_sim.scale(), 4) + " disagrees with the Kalman scale " +
-                                            fmt(scale.scale, 4) + " by " + fmt(100 * disagreement) + " %");
+  diag.covariance = verdict.covariance;
+  if (verdict.status != Status::kOk && verdict.status != Status::kDegenerate) {
+    return finish(verdict.status, verdict.message);
   }
-  const double radius = options.merge.overlap_distance_factor * medianSpacing(target_tree);
-  diag.overlap = overlapFraction(final_sim.apply(source_filtered), target_tree, radius);
-  if (diag.overlap < options.merge.min_overlap) {
-    return finish(Status::kIcpNotConverged, "refused: only " + fmt(100 * diag.overlap) +
-                                                " % of the source map overlaps the target after alignment (< " +
-                                                fmt(100 * options.merge.min_overlap) + " %)");
+  rep.transform = verdict.estimate;
+  rep.scale_stddev = verdict.estimate.scale() * std::sqrt(std::max(0.0, verdict.covariance(6, 6)));
+  Matrix6d cov, info;
+  const bool finite = poseCovariance(verdict.covariance, &cov, &info);
+  if (verdict.status == Status::kDegenerate || !finite) {
+    // Unobservable directions: the closed form's information is zero along them.
+    rep.covariance = cov.allFinite() ? cov : refinement.closed_form.covariance;
+    rep.information = refinement.closed_form.information;
+    return finish(Status::kDegenerate, finite ? verdict.message : "the covariance is not positive definite; " +
+                                                                      refinement.closed_form.message);
   }
-  if (rep.status == Status::kDegenerate) return finish(rep.status, rep.message);
-  return finish(Status::kOk, "merged 2 maps: keyframes source " + std::to_string(kf_s.id) + " / target " +
-                                 std::to_string(kf_t.id) + ", " + std::to_string(best->pose.inlier_count) +
-                                 " inliers, Kalman scale " + fmt(scale.scale, 4) + " +- " +
-                                 fmt(scale.scale_stddev, 2) + ", overlap " + fmt(100 * diag.overlap) + " %");
+  rep.covariance = cov;
+  rep.information = info;
+  return finish(Status::kOk, "merged 2 maps: " + std::to_string(kf.used_pairs) + " keyframe pair(s) (anchor source " +
+                                 std::to_string(anchor.source_keyframe) + " / target " +
+                                 std::to_string(anchor.target_keyframe) + ", " + std::to_string(anchor.inliers) +
+                                 " inliers), keyframe scale " + fmt(diag.kalman_scale, 4) + " +- " +
+                                 fmt(diag.kalman_scale_stddev, 2) + "; " + verdict.message);
+}
+
+MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const MergeRequest& request,
+                      const MergeOptions& options) {
+  MergePipeline pipeline(options);
+  return pipeline.merge(source, target, request);
 }
 
 }  // namespace pcr_pro

@@ -100,7 +100,14 @@ IcpOptions loadIcp(const YAML::Node& node, const std::string& origin) {
   {
     Block b(icp.child("outlier_rejection"), "icp.outlier_rejection", origin);
     b.get("max_correspondence_distance", &o.max_correspondence_distance);
+    b.get("reciprocal", &o.reciprocal);
+    b.get("reciprocal_tolerance", &o.reciprocal_tolerance);
+    b.get("adaptive_distance_factor", &o.adaptive_distance_factor);
     b.get("trim_ratio", &o.trim_ratio);
+    std::string kernel = robustKernelName(o.robust_kernel);
+    b.get("robust_kernel", &kernel);
+    if (!parseRobustKernel(kernel, &o.robust_kernel)) b.fail("icp.outlier_rejection.robust_kernel", "must be none or cauchy");
+    b.get("kernel_width", &o.kernel_width);
     b.get("min_correspondences", &o.min_correspondences);
     b.finish();
   }
@@ -134,7 +141,7 @@ CovarianceOptions loadCovariance(const YAML::Node& node, const std::string& orig
   Block b(node, "covariance", origin);
   std::string model = covarianceModelName(o.model);
   b.get("model", &model);
-  if (!parseCovarianceModel(model, &o.model)) b.fail("covariance.model", "must be closed_form or calibrated");
+  if (!parseCovarianceModel(model, &o.model)) b.fail("covariance.model", "must be closed_form, calibrated or blocks");
   b.get("calibration_splits", &o.calibration_splits);
   b.get("calibration_max_points", &o.calibration_max_points);
   b.get("sensor_noise_stddev", &o.sensor_noise_stddev);

@@ -8,6 +8,8 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
+#include <map>
 #include <numeric>
 #include <random>
 #include <sstream>
@@ -16,9 +18,13 @@
 
 #include "pcr_pro/geometry/kdtree.h"
 #include "pcr_pro/geometry/normals.h"
+#include "pcr_pro/geometry/similarity_fit.h"
 
 namespace pcr_pro {
 namespace {
+
+// The noise floor is the point spacing divided by this (see computeIcpCovariance()).
+constexpr double kNoiseFloorPerSpacing = 50.0;
 
 using Matrix73d = Eigen::Matrix<double, 7, 3>;
 using Vector7d = Eigen::Matrix<double, 7, 1>;
@@ -96,7 +102,10 @@ Calibration splitSampleCalibration(const Correspondences& matches, const Sim3& t
   io.error_metric = metric;
   io.estimate_scale = with_scale;
   io.max_source_points = 0;
-  io.trim_ratio = 1.0;       // the matches are already the kept (trimmed) ones
+  // The matches are already the kept ones: no trimming; the halves are re-registered by the same
+  // overlap-aware, robust ICP as the whole (IcpOptions defaults), whose errors are measured.
+  io.trim_ratio = 1.0;
+
   io.max_iterations = 8;     // the halves start at the converged pose: a few re-matchings suffice
   io.normal_neighbors = o.normal_neighbors;
   CovarianceOptions closed = o;
@@ -164,7 +173,12 @@ Calibration splitSampleCalibration(const Correspondences& matches, const Sim3& t
 }  // namespace
 
 const char* covarianceModelName(CovarianceModel model) {
-  return model == CovarianceModel::kClosedForm ? "closed_form" : "calibrated";
+  switch (model) {
+    case CovarianceModel::kClosedForm: return "closed_form";
+    case CovarianceModel::kCalibrated: return "calibrated";
+    case CovarianceModel::kBlocks: return "blocks";
+  }
+  return "calibrated";
 }
 
 bool parseCovarianceModel(const std::string& name, CovarianceModel* model) {
@@ -174,6 +188,10 @@ bool parseCovarianceModel(const std::string& name, CovarianceModel* model) {
   }
   if (name == "calibrated") {
     *model = CovarianceModel::kCalibrated;
+    return true;
+  }
+  if (name == "blocks") {
+    *model = CovarianceModel::kBlocks;
     return true;
   }
   return false;
@@ -189,6 +207,116 @@ void validate(const CovarianceOptions& o) {
   if (o.calibration_max_points < 0 || (o.calibration_max_points > 0 && o.calibration_max_points < 100)) {
     throw InputError("covariance.calibration_max_points must be 0 or >= 100");
   }
+}
+
+namespace {
+
+// Spatial blocks of the block spread, and the fewest correspondences a block needs: sixteen
+// blocks of a room-sized overlap are about a metre across, the scale at which map distortion and
+// partial-overlap bias vary; fifty correspondences keep a block's own noise small against that.
+constexpr int kMaxBlocks = 16;
+constexpr Eigen::Index kMinBlockSize = 50;
+
+// Recursive median splits of the points along their widest axis into at most `blocks` blocks.
+std::vector<std::vector<Eigen::Index>> spatialBlocks(const Cloud& points, int blocks) {
+  std::vector<std::vector<Eigen::Index>> out(1);
+  out[0].resize(static_cast<std::size_t>(points.cols()));
+  std::iota(out[0].begin(), out[0].end(), 0);
+  while (static_cast<int>(out.size()) < blocks) {
+    auto largest =
+        std::max_element(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.size() < b.size(); });
+    if (static_cast<Eigen::Index>(largest->size()) < 2 * kMinBlockSize) break;
+    std::vector<Eigen::Index> idx = std::move(*largest);
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+    for (Eigen::Index i : idx) {
+      lo = lo.cwiseMin(points.col(i));
+      hi = hi.cwiseMax(points.col(i));
+    }
+    int axis = 0;
+    (hi - lo).maxCoeff(&axis);
+    const auto mid = idx.begin() + static_cast<std::ptrdiff_t>(idx.size() / 2);
+    std::nth_element(idx.begin(), mid, idx.end(),
+                     [&](Eigen::Index a, Eigen::Index b) { return points(axis, a) < points(axis, b); });
+    std::vector<Eigen::Index> second(mid, idx.end());
+    idx.resize(idx.size() / 2);
+    *largest = std::move(idx);
+    out.push_back(std::move(second));
+  }
+  return out;
+}
+
+}  // namespace
+
+Matrix7d logScaleCovariance(const CovarianceResult& c, double scale) {
+  Matrix7d out = Matrix7d::Zero();
+  if (c.with_scale) {
+    out = c.covariance7;
+    out.row(6) /= scale;
+    out.col(6) /= scale;
+  } else {
+    out.topLeftCorner<6, 6>() = c.covariance;
+  }
+  return out;
+}
+
+BlockSpread blockSpreadCovariance(const Correspondences& m, const Sim3& transform, ErrorMetric metric,
+                                  bool with_scale, const std::vector<PointMatch3>* anchors) {
+  BlockSpread out;
+  const int d = with_scale ? 7 : 6;
+  const Cloud moved = transform.apply(m.source);
+  if (moved.cols() == 0 || m.target.cols() != moved.cols()) return out;
+  const bool plane = metric == ErrorMetric::kPointToPlane && m.target_normals.cols() == moved.cols();
+  const double sigma = std::max({m.residual_scale, m.spacing / kNoiseFloorPerSpacing, 1e-300});
+  const int wanted = static_cast<int>(std::min<Eigen::Index>(kMaxBlocks, moved.cols() / kMinBlockSize));
+  const std::vector<std::vector<Eigen::Index>> blocks = spatialBlocks(moved, std::max(1, wanted));
+  Matrix7d h = Matrix7d::Zero();
+  std::vector<Vector7d> gradients;
+  for (const auto& block : blocks) {
+    Vector7d g = Vector7d::Zero();
+    for (Eigen::Index i : block) {
+      const Eigen::Vector3d y = moved.col(i);
+      const Eigen::Vector3d r3 = y - m.target.col(i);
+      const double w = (m.weights.size() == moved.cols() ? m.weights(i) : 1.0) / (sigma * sigma);
+      const Eigen::Matrix<double, 3, 7> j3 = similarityJacobian(y);
+      if (plane) {
+        const Eigen::Vector3d n = m.target_normals.col(i);
+        const Eigen::Matrix<double, 1, 7> j = n.transpose() * j3;
+        h.noalias() += w * j.transpose() * j;
+        g.noalias() += w * j.transpose() * n.dot(r3);
+      } else {
+        h.noalias() += w * j3.transpose() * j3;
+        g.noalias() += w * j3.transpose() * r3;
+      }
+    }
+    gradients.push_back(g);
+  }
+  if (anchors) {
+    std::map<int, Vector7d> groups;
+    for (const PointMatch3& a : *anchors) {
+      const Eigen::Vector3d y = transform.apply(a.source);
+      const Eigen::Vector3d r = y - a.target;
+      const Eigen::Matrix3d w = a.covariance.inverse();
+      const double k = 1.0 / (1.0 + r.dot(w * r) / (2.4 * 2.4));  // the ICP's anchor kernel
+      const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y);
+      h.noalias() += k * j.transpose() * w * j;
+      auto it = groups.find(a.group);
+      if (it == groups.end()) it = groups.emplace(a.group, Vector7d::Zero()).first;
+      it->second.noalias() += k * j.transpose() * w * r;
+    }
+    for (const auto& entry : groups) gradients.push_back(entry.second);
+  }
+  out.clusters = static_cast<int>(gradients.size());
+  out.information = h;
+  if (!with_scale) out.information.row(6).setZero(), out.information.col(6).setZero();
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(h.topLeftCorner(d, d));
+  if (out.clusters < 3 || ldlt.info() != Eigen::Success || !ldlt.isPositive()) return out;
+  const Eigen::MatrixXd hinv = ldlt.solve(Eigen::MatrixXd::Identity(d, d));
+  Eigen::MatrixXd meat = Eigen::MatrixXd::Zero(d, d);
+  for (const Vector7d& g : gradients) meat += g.head(d) * g.head(d).transpose();
+  meat *= static_cast<double>(out.clusters) / (out.clusters - 1);
+  out.sandwich.topLeftCorner(d, d) = hinv * meat * hinv;
+  out.ok = out.sandwich.allFinite();
+  return out;
 }
 
 CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
@@ -261,11 +389,20 @@ CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3
     }
   }
 
-  // Noise: configured, or from the residuals (each cloud contributes σ² per coordinate).
+  // Noise: configured, or from the residuals (each cloud contributes σ² per coordinate), never
+  // below a floor set by the clouds' own resolution, a fiftieth of their point spacing h: real
+  // maps' noise is far above it (it never binds on them), but a map registered with itself has
+  // zero residuals and would otherwise claim an exact pose (information of 1e23 and more).
   double sigma2 = o.sensor_noise_stddev * o.sensor_noise_stddev;
   if (!(sigma2 > 0.0)) {
     const double dof = plane ? static_cast<double>(n - d) : static_cast<double>(3 * n - d);
     sigma2 = sum_r2 / (2.0 * dof);
+    double spacing = matches.spacing;
+    if (!(spacing > 0.0)) {
+      const KdTree spacing_tree(distinctTargets(matches.target));
+      spacing = medianSpacing(spacing_tree);
+    }
+    sigma2 = std::max(sigma2, std::pow(spacing / kNoiseFloorPerSpacing, 2));
   }
   res.noise_stddev = std::sqrt(sigma2);
 
@@ -346,11 +483,32 @@ CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3
     res.message = msg.str();
   } else {
     res.status = Status::kOk;
+    if (o.model == CovarianceModel::kBlocks) {
+      const BlockSpread spread = blockSpreadCovariance(matches, transform, metric, with_scale);
+      if (spread.ok) {
+        const Matrix7d covered = coveringCovariance(logScaleCovariance(res, transform.scale()), spread.sandwich,
+                                                    &res.inflation);
+        res.covariance = covered.topLeftCorner<6, 6>();
+        res.information = res.covariance.ldlt().solve(Matrix6d::Identity());
+        res.information = 0.5 * (res.information + res.information.transpose()).eval();
+        if (with_scale) {
+          Vector7d jd = Vector7d::Ones();
+          jd(6) = transform.scale();
+          res.covariance7 = jd.asDiagonal() * covered * jd.asDiagonal();
+          res.scale_stddev = std::sqrt(std::max(0.0, res.covariance7(6, 6)));
+        } else {
+          res.covariance7.topLeftCorner<6, 6>() = res.covariance;
+        }
+        res.calibration_splits_used = spread.clusters;
+      }
+    }
     std::ostringstream msg;
     msg << "covariance (" << covarianceModelName(o.model) << ") from " << n << " correspondences, noise "
         << res.noise_stddev << ", condition number " << res.condition_number;
     if (o.model == CovarianceModel::kCalibrated) {
       msg << ", inflation " << res.inflation << " from " << res.calibration_splits_used << " split(s)";
+    } else if (o.model == CovarianceModel::kBlocks) {
+      msg << ", block spread x" << res.inflation << " over " << res.calibration_splits_used << " block(s)";
     }
     res.message = msg.str();
   }

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -20,19 +21,46 @@ struct Match {
   Eigen::Index source;
   Eigen::Index target;
   double d2;
+  double weight = 1.0;  // IRLS weight (robust kernel)
 };
 
-// Nearest neighbour of every transformed source point, then the distance and trim rejection.
-// Dynamic chunks: a core busy with another process (SLAM runs beside us) then slows the loop
-// down to one thread's speed instead of stalling it at the barrier.
-std::vector<Match> matchAndReject(const Cloud& moved, const KdTree& tree, const IcpOptions& o) {
+// What the rejection needs besides the options: the trees, the pose and the spacings.
+struct MatchContext {
+  const KdTree& target;
+  const KdTree* source = nullptr;  // tree of the level's source points (source frame), for the reciprocal check
+  Sim3 pose;                       // current S_target_source
+  double spacing = 0.0;            // max(target spacing, scaled source spacing) [target units]
+};
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+// Nearest neighbour of every transformed source point, then the overlap-aware checks
+// (reciprocal, fixed and adaptive distance gates) and the trim. Dynamic chunks: a core busy with
+// another process (SLAM runs beside us) then slows the loop down to one thread's speed instead of
+// stalling it at the barrier.
+std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, const IcpOptions& o) {
   const Eigen::Index n = moved.cols();
   std::vector<Match> all(static_cast<std::size_t>(n));
+  const bool reciprocal = o.reciprocal && ctx.source != nullptr;
+  const Sim3 inverse = ctx.pose.inverse();
+  const double tolerance = o.reciprocal_tolerance * ctx.spacing;
 #pragma omp parallel for schedule(dynamic, 256) if (n >= 1024)
   for (Eigen::Index i = 0; i < n; ++i) {
     double d2 = 0.0;
-    const Eigen::Index j = tree.nearest(moved.col(i), &d2);
-    all[static_cast<std::size_t>(i)] = Match{i, j, d2};
+    Eigen::Index j = ctx.target.nearest(moved.col(i), &d2);
+    if (j >= 0 && reciprocal) {
+      // Distance from target j to its nearest source point, in target units.
+      double back2 = 0.0;
+      ctx.source->nearest(inverse.apply(Eigen::Vector3d(ctx.target.points().col(j))), &back2);
+      const double back = std::sqrt(back2) * ctx.pose.scale();
+      if (std::sqrt(d2) > back + tolerance) j = -1;
+    }
+    all[static_cast<std::size_t>(i)] = Match{i, j, d2, 1.0};
   }
   std::vector<Match> kept;
   kept.reserve(all.size());
@@ -41,6 +69,13 @@ std::vector<Match> matchAndReject(const Cloud& moved, const KdTree& tree, const 
                             : std::numeric_limits<double>::infinity();
   for (const Match& m : all) {
     if (m.target >= 0 && m.d2 <= max_d2) kept.push_back(m);
+  }
+  if (o.adaptive_distance_factor > 0.0 && !kept.empty()) {
+    std::vector<double> d(kept.size());
+    for (std::size_t k = 0; k < kept.size(); ++k) d[k] = std::sqrt(kept[k].d2);
+    const double gate = o.adaptive_distance_factor * std::max(1.4826 * median(d), ctx.spacing);
+    const double gate2 = gate * gate;
+    kept.erase(std::remove_if(kept.begin(), kept.end(), [gate2](const Match& m) { return m.d2 > gate2; }), kept.end());
   }
   if (o.trim_ratio < 1.0 && !kept.empty()) {
     const auto keep_n = std::max<std::size_t>(
@@ -52,6 +87,30 @@ std::vector<Match> matchAndReject(const Cloud& moved, const KdTree& tree, const 
     }
   }
   return kept;
+}
+
+// Residual of a correspondence for the kernel: signed point-to-plane distance, or the 3D
+// distance divided by sqrt(3) (a per-coordinate scale) for point-to-point.
+double residualOf(const Cloud& moved, const Cloud& target, const Cloud* normals, const Match& m) {
+  const Eigen::Vector3d r = moved.col(m.source) - target.col(m.target);
+  return normals ? normals->col(m.target).dot(r) : r.norm() / std::sqrt(3.0);
+}
+
+// IRLS weights of the kernel from the residuals' robust spread (1.4826 MAD), floored at a
+// hundredth of the spacing so that noise-free data do not divide by zero. Returns the spread.
+double applyKernel(const Cloud& moved, const Cloud& target, const Cloud* normals, const IcpOptions& o, double spacing,
+                   std::vector<Match>* m) {
+  if (m->empty()) return 0.0;
+  std::vector<double> r(m->size());
+  for (std::size_t k = 0; k < m->size(); ++k) r[k] = residualOf(moved, target, normals, (*m)[k]);
+  const double center = normals ? median(r) : 0.0;
+  std::vector<double> dev(r.size());
+  for (std::size_t k = 0; k < r.size(); ++k) dev[k] = std::abs(r[k] - center);
+  const double spread = std::max(1.4826 * median(dev), 0.01 * spacing);
+  if (o.robust_kernel == RobustKernel::kNone || !(spread > 0.0)) return spread;
+  const double c2 = std::pow(o.kernel_width * spread, 2);
+  for (std::size_t k = 0; k < m->size(); ++k) (*m)[k].weight = 1.0 / (1.0 + r[k] * r[k] / c2);
+  return spread;
 }
 
 // Pseudo-inverse solve of a symmetric positive semi-definite system; unobservable directions
@@ -72,15 +131,36 @@ Eigen::Matrix<double, N, 1> solvePsd(const Eigen::Matrix<double, N, N>& h, const
   return x;
 }
 
-// One point-to-plane Gauss-Newton step, linearised about the centroid c of the moved points:
-// y' = c + e^ds R(w) (y - c) + dt. Returns the incremental similarity in the target frame.
+// Adds the anchors (3D-3D matches with covariances, Cauchy kernel on their Mahalanobis distance)
+// to a normal system linearised about c: y' = c + e^ds R(w) (y - c) + dt.
+void addAnchors(const std::vector<PointMatch3>& anchors, const Sim3& current, const Eigen::Vector3d& c,
+                Eigen::Matrix<double, 7, 7>* h, Eigen::Matrix<double, 7, 1>* g) {
+  constexpr double kAnchorKernel2 = 2.4 * 2.4;  // Cauchy width on the Mahalanobis distance (3 DoF)
+  for (const PointMatch3& a : anchors) {
+    const Eigen::Vector3d y = current.apply(a.source);
+    const Eigen::Vector3d r = y - a.target;
+    const Eigen::Matrix3d w = a.covariance.inverse();
+    const double m2 = r.dot(w * r);
+    if (!std::isfinite(m2)) continue;
+    const double k = 1.0 / (1.0 + m2 / kAnchorKernel2);
+    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y - c);
+    h->noalias() += k * j.transpose() * w * j;
+    g->noalias() += k * j.transpose() * w * r;
+  }
+}
+
+// One weighted point-to-plane Gauss-Newton step (residuals weighted by w / σ², σ the residual
+// spread), linearised about the centroid c of the moved points, with the anchors. Returns the
+// incremental similarity in the target frame.
 Sim3 pointToPlaneStep(const Cloud& moved, const Cloud& target, const Cloud& normals, const std::vector<Match>& m,
-                      bool with_scale, double max_log_scale_step) {
+                      double spread, const std::vector<PointMatch3>* anchors, const Sim3& current, bool with_scale,
+                      double max_log_scale_step) {
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
   for (const Match& k : m) c += moved.col(k.source);
   c /= static_cast<double>(m.size());
   Eigen::Matrix<double, 7, 7> h = Eigen::Matrix<double, 7, 7>::Zero();
   Eigen::Matrix<double, 7, 1> g = Eigen::Matrix<double, 7, 1>::Zero();
+  const double inv_var = 1.0 / (spread * spread);
   for (const Match& k : m) {
     const Eigen::Vector3d y = moved.col(k.source);
     const Eigen::Vector3d n = normals.col(k.target);
@@ -88,9 +168,11 @@ Sim3 pointToPlaneStep(const Cloud& moved, const Cloud& target, const Cloud& norm
     Eigen::Matrix<double, 7, 1> j;
     j << n, a.cross(n), n.dot(a);
     const double r = n.dot(y - target.col(k.target));
-    h.noalias() += j * j.transpose();
-    g.noalias() += j * r;
+    const double w = k.weight * inv_var;
+    h.noalias() += w * j * j.transpose();
+    g.noalias() += w * j * r;
   }
+  if (anchors) addAnchors(*anchors, current, c, &h, &g);
   Eigen::Matrix<double, 7, 1> delta = Eigen::Matrix<double, 7, 1>::Zero();
   if (with_scale) {
     delta = solvePsd<7>(h, -g);
@@ -101,6 +183,31 @@ Sim3 pointToPlaneStep(const Cloud& moved, const Cloud& target, const Cloud& norm
   const double s = std::exp(ds);
   const Eigen::Matrix3d r = expSO3(delta.segment<3>(3));
   return Sim3(s, r, c - s * (r * c) + delta.head<3>());
+}
+
+// One weighted point-to-point step (weighted Umeyama); anchors join as weighted point pairs with
+// the weight of their covariance's mean variance against the residual spread.
+Sim3 pointToPointStep(const Cloud& moved, const Cloud& target, const std::vector<Match>& m, double spread,
+                      const std::vector<PointMatch3>* anchors, const Sim3& current, bool with_scale) {
+  const std::size_t na = anchors ? anchors->size() : 0;
+  const auto total = static_cast<Eigen::Index>(m.size() + na);
+  Cloud y(3, total), q(3, total);
+  Eigen::VectorXd w(total);
+  for (std::size_t k = 0; k < m.size(); ++k) {
+    const auto col = static_cast<Eigen::Index>(k);
+    y.col(col) = moved.col(m[k].source);
+    q.col(col) = target.col(m[k].target);
+    w(col) = m[k].weight;
+  }
+  for (std::size_t k = 0; k < na; ++k) {
+    const PointMatch3& a = (*anchors)[k];
+    const auto col = static_cast<Eigen::Index>(m.size() + k);
+    y.col(col) = current.apply(a.source);
+    q.col(col) = a.target;
+    const double var = a.covariance.trace() / 3.0;
+    w(col) = var > 0.0 ? spread * spread / var : 0.0;
+  }
+  return umeyama(y, q, w, with_scale);
 }
 
 // Target normals estimated on demand: only target points that get matched ever need one.
@@ -139,6 +246,20 @@ const char* errorMetricName(ErrorMetric metric) {
   return metric == ErrorMetric::kPointToPoint ? "point_to_point" : "point_to_plane";
 }
 
+const char* robustKernelName(RobustKernel kernel) { return kernel == RobustKernel::kNone ? "none" : "cauchy"; }
+
+bool parseRobustKernel(const std::string& name, RobustKernel* kernel) {
+  if (name == "none") {
+    *kernel = RobustKernel::kNone;
+    return true;
+  }
+  if (name == "cauchy") {
+    *kernel = RobustKernel::kCauchy;
+    return true;
+  }
+  return false;
+}
+
 bool parseErrorMetric(const std::string& name, ErrorMetric* metric) {
   if (name == "point_to_point") {
     *metric = ErrorMetric::kPointToPoint;
@@ -159,6 +280,15 @@ void validate(const IcpOptions& o) {
     throw InputError("icp.outlier_rejection.max_correspondence_distance must be >= 0");
   }
   if (!(o.trim_ratio > 0.0 && o.trim_ratio <= 1.0)) throw InputError("icp.outlier_rejection.trim_ratio must be in (0, 1]");
+  if (!(o.reciprocal_tolerance >= 0.0) || !std::isfinite(o.reciprocal_tolerance)) {
+    throw InputError("icp.outlier_rejection.reciprocal_tolerance must be >= 0");
+  }
+  if (!(o.adaptive_distance_factor >= 0.0) || !std::isfinite(o.adaptive_distance_factor)) {
+    throw InputError("icp.outlier_rejection.adaptive_distance_factor must be >= 0");
+  }
+  if (!(o.kernel_width > 0.0) || !std::isfinite(o.kernel_width)) {
+    throw InputError("icp.outlier_rejection.kernel_width must be > 0");
+  }
   if (!(o.max_scale_step > 0.0 && o.max_scale_step < 1.0)) {
     throw InputError("icp.error_minimizer.max_scale_step must be in (0, 1)");
   }
@@ -178,22 +308,42 @@ void validate(const IcpOptions& o) {
 }
 
 Sim3 umeyama(const Cloud& src, const Cloud& dst, bool with_scale) {
-  const double n = static_cast<double>(src.cols());
-  const Eigen::Vector3d mu_s = src.rowwise().mean();
-  const Eigen::Vector3d mu_d = dst.rowwise().mean();
+  return umeyama(src, dst, Eigen::VectorXd::Ones(src.cols()), with_scale);
+}
+
+Sim3 umeyama(const Cloud& src, const Cloud& dst, const Eigen::VectorXd& weights, bool with_scale) {
+  const double total = weights.sum();
+  if (!(total > 0.0)) return Sim3();
+  const Eigen::Vector3d mu_s = src * weights / total;
+  const Eigen::Vector3d mu_d = dst * weights / total;
   const Cloud cs = src.colwise() - mu_s;
   const Cloud cd = dst.colwise() - mu_d;
-  const Eigen::Matrix3d sigma = cd * cs.transpose() / n;
+  const Eigen::Matrix3d sigma = cd * weights.asDiagonal() * cs.transpose() / total;
   Eigen::JacobiSVD<Eigen::Matrix3d> svd(sigma, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Eigen::Vector3d d = Eigen::Vector3d::Ones();
   if (svd.matrixU().determinant() * svd.matrixV().determinant() < 0) d(2) = -1;
   const Eigen::Matrix3d r = svd.matrixU() * d.asDiagonal() * svd.matrixV().transpose();
   double s = 1.0;
   if (with_scale) {
-    const double var_s = cs.squaredNorm() / n;
+    const double var_s = (cs.colwise().squaredNorm().transpose().cwiseProduct(weights)).sum() / total;
     if (var_s > 0.0) s = svd.singularValues().dot(d) / var_s;
   }
   return Sim3(s, r, mu_d - s * (r * mu_s));
+}
+
+double medianSpacing(const KdTree& tree) {
+  const Cloud& pts = tree.points();
+  const Eigen::Index n = pts.cols();
+  if (n < 2) return 0.0;
+  const Eigen::Index step = std::max<Eigen::Index>(1, n / 2000);
+  std::vector<double> d;
+  std::vector<Eigen::Index> idx;
+  std::vector<double> d2;
+  for (Eigen::Index i = 0; i < n; i += step) {
+    tree.knn(pts.col(i), 2, &idx, &d2);
+    if (d2.size() == 2) d.push_back(std::sqrt(d2[1]));
+  }
+  return median(d);
 }
 
 namespace {
@@ -212,20 +362,43 @@ struct LevelOutcome {
 constexpr double kExtrapolationMinCosine = 0.95;
 constexpr double kExtrapolationMaxFactor = 8.0;
 
-// Iterates match / reject / minimise on `source` from `*current` until the differential check
-// passes at `tolerance` times the configured thresholds, or the iteration limit.
-LevelOutcome iterateLevel(const Cloud& source, const Cloud& target, const KdTree& tree, LazyNormals& normals,
-                          const IcpOptions& o, double tolerance, double target_radius, double min_scale,
-                          double max_scale, int iteration_offset, Sim3* current) {
+// What every level of iterations shares.
+struct LevelEnv {
+  const KdTree& tree;
+  LazyNormals& normals;
+  const IcpOptions& o;
+  double target_radius = 0.0;
+  double target_spacing = 0.0;
+  double min_scale = 0.0, max_scale = 0.0;
+  const std::vector<PointMatch3>* anchors = nullptr;
+};
+
+// Iterates match / reject / weight / minimise on `source` from `*current` until the differential
+// check passes at `tolerance` times the configured thresholds, or the iteration limit.
+LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double tolerance, int iteration_offset,
+                          Sim3* current) {
+  const IcpOptions& o = env.o;
+  const Cloud& target = env.tree.points();
   LevelOutcome out;
   const double max_log_step = std::log1p(o.max_scale_step);
   const Eigen::Vector3d source_centroid = source.rowwise().mean();
+  const double min_scale = env.min_scale, max_scale = env.max_scale;
+  const double target_radius = env.target_radius;
+  // The reciprocal check needs the level's own source points in a tree.
+  std::unique_ptr<KdTree> source_tree;
+  double source_spacing = 0.0;
+  if (o.reciprocal) {
+    source_tree = std::make_unique<KdTree>(source);
+    source_spacing = medianSpacing(*source_tree);
+  }
   Eigen::Matrix<double, 7, 1> previous_twist = Eigen::Matrix<double, 7, 1>::Zero();
   bool has_previous = false, extrapolated = false;
   for (; out.iterations < o.max_iterations; ++out.iterations) {
     const int iter = iteration_offset + out.iterations;
     const Cloud moved = current->apply(source);
-    const std::vector<Match> m = matchAndReject(moved, tree, o);
+    const MatchContext ctx{env.tree, source_tree.get(), *current,
+                           std::max(env.target_spacing, source_spacing * current->scale())};
+    std::vector<Match> m = matchAndReject(moved, ctx, o);
     if (static_cast<int>(m.size()) < o.min_correspondences) {
       out.failed = true;
       out.message = "icp: only " + std::to_string(m.size()) + " correspondences at iteration " + std::to_string(iter) +
@@ -234,21 +407,20 @@ LevelOutcome iterateLevel(const Cloud& source, const Cloud& target, const KdTree
     }
     Sim3 step;
     if (o.error_metric == ErrorMetric::kPointToPoint) {
-      Cloud y(3, static_cast<Eigen::Index>(m.size())), q(3, static_cast<Eigen::Index>(m.size()));
-      for (std::size_t k = 0; k < m.size(); ++k) {
-        y.col(static_cast<Eigen::Index>(k)) = moved.col(m[k].source);
-        q.col(static_cast<Eigen::Index>(k)) = target.col(m[k].target);
-      }
-      step = umeyama(y, q, o.estimate_scale);
+      const double spread = applyKernel(moved, target, nullptr, o, ctx.spacing, &m);
+      step = pointToPointStep(moved, target, m, spread, env.anchors, *current, o.estimate_scale);
       const double ds = std::max(-max_log_step, std::min(max_log_step, std::log(step.scale())));
       if (std::exp(ds) != step.scale()) {
-        // Scale clamped: re-fit the translation so the centroids still coincide.
-        const double s = std::exp(ds);
-        step = Sim3(s, step.rotation(), q.rowwise().mean() - s * (step.rotation() * y.rowwise().mean()));
+        // Scale clamped: keep the moved centroid where the step put it.
+        const double sc = std::exp(ds);
+        const Eigen::Vector3d mc = moved.rowwise().mean();
+        step = Sim3(sc, step.rotation(), step.apply(mc) - sc * (step.rotation() * mc));
       }
     } else {
-      normals.ensure(m);
-      step = pointToPlaneStep(moved, target, normals.normals(), m, o.estimate_scale, max_log_step);
+      env.normals.ensure(m);
+      const double spread = applyKernel(moved, target, &env.normals.normals(), o, ctx.spacing, &m);
+      step = pointToPlaneStep(moved, target, env.normals.normals(), m, spread, env.anchors, *current,
+                              o.estimate_scale, max_log_step);
     }
     Sim3 next = step * *current;
     if (!next.matrix().allFinite()) {
@@ -324,7 +496,8 @@ IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial
   return alignIcp(source, tree, initial, o);
 }
 
-IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initial, const IcpOptions& o) {
+IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initial, const IcpOptions& o,
+                   const std::vector<PointMatch3>* anchors) {
   validate(o);
   if (source_in.cols() == 0) throw InputError("icp: source cloud is empty");
   MaxPointsOptions sampling;
@@ -335,9 +508,12 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   IcpResult result;
   LazyNormals normals(tree, o.normal_neighbors);
   const Eigen::Vector3d target_centroid = target.rowwise().mean();
-  const double target_radius = std::sqrt((target.colwise() - target_centroid).colwise().squaredNorm().mean());
-  const double min_scale = initial.scale() * o.min_scale_ratio;
-  const double max_scale = initial.scale() * o.max_scale_ratio;
+  LevelEnv env{tree, normals, o};
+  env.target_radius = std::sqrt((target.colwise() - target_centroid).colwise().squaredNorm().mean());
+  env.target_spacing = medianSpacing(tree);
+  env.min_scale = initial.scale() * o.min_scale_ratio;
+  env.max_scale = initial.scale() * o.max_scale_ratio;
+  env.anchors = anchors && !anchors->empty() ? anchors : nullptr;
 
   Sim3 current = initial;
   int iter = 0;
@@ -349,15 +525,13 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
       MaxPointsOptions coarse_sampling;
       coarse_sampling.max_points = static_cast<int>(n);
       const Cloud coarse = maxPointsFilter(source, coarse_sampling);
-      const LevelOutcome c = iterateLevel(coarse, target, tree, normals, o, kCoarseToleranceFactor, target_radius,
-                                          min_scale, max_scale, iter, &current);
+      const LevelOutcome c = iterateLevel(coarse, env, kCoarseToleranceFactor, iter, &current);
       iter += c.iterations;
       // A failed coarse level (e.g. too few correspondences on a small sample) leaves the
       // decision to the larger samples, from the last good pose.
     }
   }
-  const LevelOutcome fine =
-      iterateLevel(source, target, tree, normals, o, 1.0, target_radius, min_scale, max_scale, iter, &current);
+  const LevelOutcome fine = iterateLevel(source, env, 1.0, iter, &current);
   iter += fine.iterations;
   if (fine.failed) {
     result.status = Status::kIcpNotConverged;
@@ -368,9 +542,20 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   }
   const bool converged = fine.converged;
 
-  // Final correspondences at the converged pose.
+  // Final correspondences (and their weights) at the converged pose.
   const Cloud moved = current.apply(source);
-  const std::vector<Match> m = matchAndReject(moved, tree, o);
+  std::unique_ptr<KdTree> source_tree;
+  double source_spacing = 0.0;
+  if (o.reciprocal) {
+    source_tree = std::make_unique<KdTree>(source);
+    source_spacing = medianSpacing(*source_tree);
+  }
+  const MatchContext ctx{tree, source_tree.get(), current, std::max(env.target_spacing, source_spacing * current.scale())};
+  std::vector<Match> m = matchAndReject(moved, ctx, o);
+  // Point-to-plane uses them; the covariance's observability check needs them for both metrics.
+  normals.ensure(m);
+  const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
+  const double spread = applyKernel(moved, target, plane ? &normals.normals() : nullptr, o, ctx.spacing, &m);
   result.transform = current;
   result.iterations = iter;
   result.converged = converged;
@@ -379,14 +564,16 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   c.source.resize(3, static_cast<Eigen::Index>(m.size()));
   c.target.resize(3, static_cast<Eigen::Index>(m.size()));
   c.target_normals.resize(3, static_cast<Eigen::Index>(m.size()));
-  // Point-to-plane uses them; the covariance's observability check needs them for both metrics.
-  normals.ensure(m);
+  c.weights.resize(static_cast<Eigen::Index>(m.size()));
+  c.residual_scale = spread;
+  c.spacing = ctx.spacing;
   double sum_d2 = 0.0;
   for (std::size_t k = 0; k < m.size(); ++k) {
     const auto col = static_cast<Eigen::Index>(k);
     c.source.col(col) = source.col(m[k].source);
     c.target.col(col) = target.col(m[k].target);
     c.target_normals.col(col) = normals.normals().col(m[k].target);
+    c.weights(col) = m[k].weight;
     sum_d2 += m[k].d2;
   }
   result.fitness_rmse = m.empty() ? 0.0 : std::sqrt(sum_d2 / static_cast<double>(m.size()));

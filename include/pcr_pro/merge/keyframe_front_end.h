@@ -1,0 +1,117 @@
+/**
+ * @file keyframe_front_end.h
+ * @brief The merge's fast estimate, stage 1: SIFT once per keyframe (cached across merges),
+ * the descriptor-vote preselection of keyframe pairs, FLANN matching and the OpenGV relative
+ * pose of every candidate pair.
+ */
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "pcr_pro/frontend/feature_matching.h"
+#include "pcr_pro/frontend/relative_pose.h"
+#include "pcr_pro/geometry/map_types.h"
+#include "pcr_pro/merge/merge_options.h"
+
+namespace pcr_pro {
+
+/**
+ * @brief SIFT features per keyframe, kept across merges. An entry is keyed by (map key,
+ * keyframe id) and remembers a fingerprint of the image it was computed from (buffer, size and a
+ * sample of pixels) and of the SIFT options: a keyframe re-sent with new content, or other
+ * options, is recomputed, never served stale. Thread-safe.
+ */
+class FeatureCache {
+ public:
+  /// @return the cached features of the keyframe, or null when absent or stale
+  std::shared_ptr<const KeyframeFeatures> find(const std::string& map_key, const MapKeyframe& keyframe,
+                                               const FeatureMatchingOptions& options) const;
+  /// Stores the features of a keyframe (replacing an older entry).
+  void store(const std::string& map_key, const MapKeyframe& keyframe, const FeatureMatchingOptions& options,
+             std::shared_ptr<const KeyframeFeatures> features);
+  /// Drops one keyframe's entry (e.g. when the keyframe is re-sent or leaves the map).
+  void invalidate(const std::string& map_key, long keyframe_id);
+  /// Drops every entry of one map.
+  void invalidateMap(const std::string& map_key);
+  void clear();
+  /// @return number of entries
+  std::size_t size() const;
+
+ private:
+  struct Entry {
+    std::uint64_t fingerprint = 0;
+    std::shared_ptr<const KeyframeFeatures> features;
+  };
+  mutable std::mutex mutex_;
+  std::map<std::pair<std::string, long>, Entry> entries_;
+};
+
+/// A keyframe pair matched in full, with its relative pose (verified when pose.status is kOk).
+struct CandidatePair {
+  const MapKeyframe* source = nullptr;
+  const MapKeyframe* target = nullptr;
+  int votes = -1;          ///< descriptor votes of the preselection (-1: no preselection)
+  FeatureMatches matches;  ///< a = target keyframe, b = source keyframe
+  RelativePoseResult pose;
+};
+
+/**
+ * @brief Relative pose of one keyframe pair from its matches: bearings of the matched pixels
+ * (pixels_a in the target keyframe, pixels_b in the source keyframe), RANSAC threshold from the
+ * mean focal length of the two cameras.
+ * @throw InputError as estimateRelativePose()
+ */
+RelativePoseResult keyframePairPose(const FeatureMatches& matches, const PinholeCamera& target_camera,
+                                    const PinholeCamera& source_camera, const RelativePoseOptions& options);
+
+/// What the front end found.
+struct FrontEndResult {
+  /// Status kInvalidInput with message when a requested keyframe is missing; otherwise kOk, also
+  /// when no pair verified (see verified).
+  Status status = Status::kOk;
+  std::string message;
+  /// Every candidate pair, the verified ones first by decreasing inlier count, then the others
+  /// by decreasing match count.
+  std::vector<CandidatePair> pairs;
+  int verified = 0;        ///< pairs with pose.status kOk (the first `verified` of pairs)
+  int keyframe_pairs = 0;  ///< keyframe pairs there were before the preselection
+  int features_computed = 0;
+  int features_cached = 0;
+  double features_ms = 0.0;       ///< SIFT and matching
+  double relative_pose_ms = 0.0;  ///< RANSAC and refinement of every candidate
+};
+
+/// Stage 1 of the merge (see the file comment). Built once from the options; keeps the feature
+/// cache across runs.
+class KeyframeFrontEnd {
+ public:
+  /// @throw InputError when the options are invalid
+  explicit KeyframeFrontEnd(const MergeOptions& options);
+
+  /**
+   * @brief Features, preselection, matching and relative pose for the keyframes of two maps.
+   * @param[in] source source map (its keyframes must outlive the result)
+   * @param[in] target target map
+   * @param[in] request keyframe ids to use (unset = every keyframe)
+   * @param[in] source_key, target_key cache keys of the two maps (e.g. agent names)
+   */
+  FrontEndResult run(const AgentMap& source, const AgentMap& target, const MergeRequest& request,
+                     const std::string& source_key = "source", const std::string& target_key = "target");
+
+  FeatureCache& cache() { return cache_; }
+  const MergeOptions& options() const { return options_; }
+
+ private:
+  std::vector<std::shared_ptr<const KeyframeFeatures>> featuresOf(const std::vector<const MapKeyframe*>& keyframes,
+                                                                  const std::string& key, FrontEndResult* out);
+  MergeOptions options_;
+  FeatureCache cache_;
+};
+
+}  // namespace pcr_pro

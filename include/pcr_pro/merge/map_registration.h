@@ -1,0 +1,86 @@
+/**
+ * @file map_registration.h
+ * @brief The merge's refinement: the map clouds filtered once and the target indexed once; an
+ * overlap-aware similarity ICP (reciprocal matching, adaptive distance gate, Cauchy kernel) that
+ * carries the keyframe matches along as anchors; the overlap of the aligned maps; and a
+ * covariance that covers, besides the residual noise, how the estimate moves between spatial
+ * blocks of the overlap (map distortion, scale drift, partial-overlap bias).
+ */
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "pcr_pro/geometry/kdtree.h"
+#include "pcr_pro/geometry/similarity_fit.h"
+#include "pcr_pro/registration/config.h"
+#include "pcr_pro/registration/covariance.h"
+#include "pcr_pro/registration/icp.h"
+
+namespace pcr_pro {
+
+/// Outcome of MapRegistration::refine().
+struct Refinement {
+  Status status = Status::kIcpNotConverged;  ///< kOk, kDegenerate or kIcpNotConverged
+  std::string message;
+  Sim3 estimate;                           ///< S_target_source
+  Matrix7d covariance = Matrix7d::Zero();  ///< similarity_fit.h convention (log scale as 7th)
+  IcpResult icp;
+  CovarianceResult closed_form;  ///< Censi / calibrated, on the ICP correspondences
+  int blocks = 0;                ///< spatial blocks of the block spread
+  /// How much the spread between blocks enlarged the closed-form covariance (1 = not at all) [-].
+  double block_spread_factor = 1.0;
+  double ms_icp = 0.0, ms_covariance = 0.0;
+};
+
+/**
+ * @brief Stage 3 of the merge (see the file comment). Built once per pair of clouds; refine()
+ * and overlap() may then be called as often as needed.
+ */
+class MapRegistration {
+ public:
+  /**
+   * @param[in] options the geometric stages (filters, icp, covariance)
+   * @param[in] estimate_scale the scale policy: refine the scale too, or keep the initial one
+   * @throw InputError on invalid options
+   */
+  MapRegistration(const RegistrationOptions& options, bool estimate_scale);
+  ~MapRegistration();
+
+  /**
+   * @brief Filters both clouds (once) and indexes the target.
+   * @return an empty string, or why the clouds cannot be registered (a filter left one empty)
+   * @throw InputError on an empty input cloud
+   */
+  std::string setClouds(const Cloud& source, const Cloud& target);
+
+  /**
+   * @brief Refines S_target_source from `initial` with the ICP and the anchors.
+   * @param[in] initial starting estimate (the keyframe estimate)
+   * @param[in] anchors 3D-3D keyframe matches (group = keyframe pair); may be empty
+   */
+  Refinement refine(const Sim3& initial, const std::vector<PointMatch3>& anchors) const;
+
+  /**
+   * @brief Overlap of the aligned maps: the larger of the fraction of (a sample of) the source
+   * points that have a target point within `factor` spacings and the same fraction of the target
+   * points towards the source; the spacing is the larger of the two clouds' median spacings.
+   */
+  double overlap(const Sim3& target_source, double factor) const;
+
+  const Cloud& source() const { return source_; }
+  const Cloud& target() const { return target_; }
+  const KdTree& targetTree() const { return *target_tree_; }
+  double filterMs() const { return filter_ms_; }
+
+ private:
+  RegistrationOptions options_;
+  bool estimate_scale_;
+  Cloud source_, target_;
+  std::unique_ptr<KdTree> target_tree_, source_tree_;
+  double target_spacing_ = 0.0, source_spacing_ = 0.0;
+  double filter_ms_ = 0.0;
+};
+
+}  // namespace pcr_pro

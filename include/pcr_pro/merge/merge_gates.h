@@ -1,0 +1,53 @@
+/**
+ * @file merge_gates.h
+ * @brief The merge's last stage: which estimate to report (the refinement only when it agrees
+ * with the keyframe evidence), its covariance, and the checks that refuse maps that do not
+ * overlap instead of merging them wrongly.
+ */
+#pragma once
+
+#include <string>
+
+#include "pcr_pro/merge/map_registration.h"
+#include "pcr_pro/merge/merge_options.h"
+#include "pcr_pro/merge/similarity_initializer.h"
+
+namespace pcr_pro {
+
+/// What the gates decided.
+struct GateVerdict {
+  Status status = Status::kOk;  ///< kOk, kDegenerate or a refusal (kNoOverlap, kScaleFailed)
+  std::string message;
+  Sim3 estimate;                           ///< the reported S_target_source
+  Matrix7d covariance = Matrix7d::Zero();  ///< its covariance (similarity_fit.h convention)
+  bool refinement_kept = false;            ///< the estimate is the refined one
+  double refinement_chi2 = 0.0;            ///< squared Mahalanobis distance refined vs keyframe
+  double rotation_correction_deg = 0.0;    ///< rotation between refined and keyframe estimates [deg]
+  double scale_disagreement = 0.0;         ///< |s_refined / s_keyframe - 1| [-]
+  double overlap = 0.0;                    ///< MapRegistration::overlap() of the reported estimate
+};
+
+/// Stage 4 of the merge (see the file comment).
+class MergeGates {
+ public:
+  /// @throw InputError when the options are invalid
+  explicit MergeGates(const MergeGateOptions& options);
+
+  /**
+   * @brief Chooses the estimate and checks it.
+   *
+   * The refinement is kept when it converged, agrees with the keyframe estimate within
+   * refinement_agreement_chi2 (7 DoF, both covariances), rotates it by at most
+   * max_icp_rotation_correction_deg and changes its scale by at most max_scale_disagreement; its
+   * covariance is then scaled by max(1, χ² / 7), the disagreement of two independent estimates.
+   * Otherwise the keyframe estimate and its covariance are reported, with why in the message.
+   * The reported estimate must then overlap the target by min_overlap (MapRegistration::overlap()).
+   */
+  GateVerdict judge(const KeyframeEstimate& keyframes, const Refinement& refinement,
+                    const MapRegistration& registration) const;
+
+ private:
+  MergeGateOptions options_;
+};
+
+}  // namespace pcr_pro

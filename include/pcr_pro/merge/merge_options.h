@@ -1,0 +1,83 @@
+/**
+ * @file merge_options.h
+ * @brief Configuration of every stage of the merge (config/merge.yaml) and what a caller asks
+ * of one merge.
+ */
+#pragma once
+
+#include <optional>
+#include <string>
+
+#include "pcr_pro/frontend/feature_matching.h"
+#include "pcr_pro/frontend/keyframe_depth.h"
+#include "pcr_pro/frontend/relative_pose.h"
+#include "pcr_pro/frontend/scale_estimation.h"
+#include "pcr_pro/io/input_limits.h"
+#include "pcr_pro/registration/config.h"
+
+namespace pcr_pro {
+
+/// Keyframe pair selection and the quality gates against false merges (YAML block `merge`).
+struct MergeGateOptions {
+  /// Scale policy of the refinement: estimate the scale there too (similarity ICP from the
+  /// keyframe estimate's scale); false keeps the keyframe estimate's scale and its stddev.
+  bool refine_scale = true;
+  /// When no keyframe ids are given and there are more keyframe pairs than this, only this many
+  /// pairs, those with the most descriptor votes (keyframePairVotes()), get the full matching
+  /// and relative pose; every verified one of them contributes evidence [pairs], >= 0; 0 = every
+  /// pair (cost grows with the product of the keyframe counts: 50 x 50 keyframes are 2500 pairs).
+  int max_candidate_pairs = 10;
+  /// A verified keyframe pair whose own estimate differs from the pooled one by more than this
+  /// squared Mahalanobis distance (7 DoF, covariance of both) is dropped and reported [-], > 0
+  /// (χ² with 7 DoF: 24.32 = 99.9 %).
+  double pair_consistency_chi2 = 24.32;
+  /// The refined estimate is kept only when it differs from the keyframe estimate by at most
+  /// this squared Mahalanobis distance (7 DoF, both covariances); otherwise the keyframe
+  /// estimate is reported, with the refinement's verdict [-], > 0 (24.32 = 99.9 %).
+  double refinement_agreement_chi2 = 24.32;
+  /// Overlap check: a point overlaps when its nearest neighbour in the other cloud, after the
+  /// merge, is closer than this many times the larger of the two clouds' median point spacings
+  /// [-], > 0.
+  double overlap_distance_factor = 3.0;
+  /// Fewest overlapping points for a merge: the larger of the source's overlapping fraction and
+  /// the target's (so that a→b and b→a agree) [-], in [0, 1]. Below it: NO_OVERLAP.
+  double min_overlap = 0.2;
+  /// Largest relative disagreement between the refined scale and the keyframe scale [-], > 0.
+  double max_scale_disagreement = 0.2;
+  /// Largest rotation the refinement may apply to the keyframe estimate [deg], > 0.
+  double max_icp_rotation_correction_deg = 15.0;
+};
+
+/// @throw InputError naming the option when out of range
+void validate(const MergeGateOptions& options);
+
+/// Configuration of every stage of the merge.
+struct MergeOptions {
+  FeatureMatchingOptions matching;
+  RelativePoseOptions relative_pose;
+  KeyframeDepthOptions keyframe_depth;
+  ScaleEstimationOptions scale_estimation;
+  MergeGateOptions merge;
+  RegistrationOptions registration;  ///< scale_detection, filters, icp, covariance
+  InputLimits limits;                ///< resource bounds on the inputs (block `limits`)
+};
+
+/// @throw InputError naming the first invalid option
+void validate(const MergeOptions& options);
+
+/**
+ * @brief Parses a merge configuration (blocks matching, relative_pose, keyframe_depth,
+ * scale_estimation, merge, scale_detection, filters, icp, covariance, limits; all optional).
+ * @throw InputError "<origin>: <key>: <what>" on bad YAML, unknown keys, wrong types or ranges
+ */
+MergeOptions parseMergeConfig(const std::string& text, const std::string& origin);
+/// @brief As parseMergeConfig() from a file. @throw InputError naming the file
+MergeOptions loadMergeConfig(const std::string& path);
+
+/// Which keyframes to use; unset = the pipeline chooses the pair with most verified inliers.
+struct MergeRequest {
+  std::optional<long> source_keyframe;
+  std::optional<long> target_keyframe;
+};
+
+}  // namespace pcr_pro

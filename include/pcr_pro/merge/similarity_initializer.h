@@ -1,0 +1,76 @@
+/**
+ * @file similarity_initializer.h
+ * @brief The merge's fast estimate, stage 2: for every verified keyframe pair, the keyframe
+ * depth, the Kalman-filter scale and the pair's own initial Sim(3); then one robust Sim(3) from
+ * the 3D-3D matches of all pairs pooled (with each pair's relative-pose rotation), a consistency
+ * check of the pairs against each other (a pair that disagrees beyond its uncertainty is
+ * dropped and reported), and a covariance that holds the pairs' disagreement.
+ */
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "pcr_pro/frontend/scale_estimation.h"
+#include "pcr_pro/geometry/map_types.h"
+#include "pcr_pro/geometry/similarity_fit.h"
+#include "pcr_pro/merge/keyframe_front_end.h"
+#include "pcr_pro/merge/merge_options.h"
+
+namespace pcr_pro {
+
+/// The evidence of one verified keyframe pair.
+struct PairEvidence {
+  long source_keyframe = 0;
+  long target_keyframe = 0;
+  int feature_matches = 0;
+  int inliers = 0;        ///< relative-pose inliers
+  int depth_matches = 0;  ///< inliers with depth on both sides
+  ScaleEstimate scale;    ///< the pair's Kalman-filter scale
+  bool has_estimate = false;  ///< the scale filter succeeded: estimate and covariance are set
+  Sim3 estimate;              ///< the pair's own S_target_source
+  Matrix7d covariance = Matrix7d::Zero();  ///< of estimate (similarity_fit.h convention)
+  bool used = false;     ///< part of the pooled estimate
+  std::string note;      ///< why not used, or how it was used
+  double consistency_chi2 = 0.0;  ///< squared Mahalanobis distance to the pooled estimate
+  /// The pair's Kalman-inlier matches as map points (source map, target map) with covariances.
+  std::vector<PointMatch3> matches;
+  /// The relative pose's rotation as a map-to-map rotation measurement.
+  RotationMeasurement rotation;
+};
+
+/// The keyframe estimate of S_target_source.
+struct KeyframeEstimate {
+  /// kOk; or the status of the best pair's failure (NOT_ENOUGH_MATCHES, SCALE_FAILED, ...).
+  Status status = Status::kScaleFailed;
+  std::string message;
+  Sim3 estimate;                           ///< S_target_source
+  Matrix7d covariance = Matrix7d::Zero();  ///< similarity_fit.h convention
+  SimilarityFit fit;                       ///< of the pooled matches
+  std::vector<PairEvidence> pairs;         ///< every verified pair, in the front end's order
+  int anchor = -1;  ///< index in pairs of the edge's anchor pair (used pair with most inlier matches)
+  /// The pooled inlier matches (group = index in pairs), for the refinement.
+  std::vector<PointMatch3> matches;
+  int used_pairs = 0;
+  int dropped_pairs = 0;
+  double ms = 0.0;
+};
+
+/// Stage 2 of the merge (see the file comment).
+class SimilarityInitializer {
+ public:
+  /// @throw InputError when the options are invalid
+  explicit SimilarityInitializer(const MergeOptions& options);
+
+  /**
+   * @param[in] source source map (cloud used for keyframes without depth images)
+   * @param[in] target target map
+   * @param[in] front the front end's pairs (only the verified ones are used)
+   */
+  KeyframeEstimate run(const AgentMap& source, const AgentMap& target, const FrontEndResult& front) const;
+
+ private:
+  MergeOptions options_;
+};
+
+}  // namespace pcr_pro

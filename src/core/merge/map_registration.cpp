@@ -1,0 +1,145 @@
+#include "pcr_pro/merge/map_registration.h"
+
+#include <Eigen/Cholesky>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <numeric>
+#include <sstream>
+
+#include "pcr_pro/registration/filters.h"
+
+namespace pcr_pro {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using Vector7d = Eigen::Matrix<double, 7, 1>;
+
+double msSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+// Points sampled by the overlap measure: the fraction is then known to about ±0.7 %.
+constexpr Eigen::Index kOverlapSamples = 5000;
+// Information (pseudo-inverse on the active block) of a covariance.
+Matrix7d informationOf(const Matrix7d& cov, int d) {
+  Matrix7d out = Matrix7d::Zero();
+  const Eigen::MatrixXd block = cov.topLeftCorner(d, d);
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(block);
+  if (ldlt.info() != Eigen::Success) return out;
+  out.topLeftCorner(d, d) = ldlt.solve(Eigen::MatrixXd::Identity(d, d));
+  return out;
+}
+
+// Fraction of (a sample of) `points` mapped by `map` that have a neighbour in `tree` within
+// `radius` (distances in the tree's units times `to_units`).
+double coveredFraction(const Cloud& points, const Sim3& map, const KdTree& tree, double radius) {
+  const Eigen::Index n = points.cols();
+  if (n == 0 || tree.size() == 0) return 0.0;
+  const Eigen::Index step = std::max<Eigen::Index>(1, n / kOverlapSamples);
+  Eigen::Index inside = 0, total = 0;
+  const double r2 = radius * radius;
+  for (Eigen::Index i = 0; i < n; i += step, ++total) {
+    double d2 = 0.0;
+    if (tree.nearest(map.apply(Eigen::Vector3d(points.col(i))), &d2) >= 0 && d2 <= r2) ++inside;
+  }
+  return static_cast<double>(inside) / static_cast<double>(total);
+}
+
+}  // namespace
+
+MapRegistration::MapRegistration(const RegistrationOptions& options, bool estimate_scale)
+    : options_(options), estimate_scale_(estimate_scale) {
+  validate(options_);
+}
+
+MapRegistration::~MapRegistration() = default;
+
+std::string MapRegistration::setClouds(const Cloud& source, const Cloud& target) {
+  if (source.cols() == 0) throw InputError("source cloud is empty");
+  if (target.cols() == 0) throw InputError("target cloud is empty");
+  const auto t = Clock::now();
+  source_ = applyFilterChain(source, options_.filters);
+  target_ = applyFilterChain(target, options_.filters);
+  filter_ms_ = msSince(t);
+  if (source_.cols() == 0 || target_.cols() == 0) {
+    return std::string("the filters removed every point of the ") + (source_.cols() == 0 ? "source" : "target") +
+           " map cloud";
+  }
+  target_tree_ = std::make_unique<KdTree>(target_);
+  source_tree_ = std::make_unique<KdTree>(source_);
+  target_spacing_ = medianSpacing(*target_tree_);
+  source_spacing_ = medianSpacing(*source_tree_);
+  return "";
+}
+
+double MapRegistration::overlap(const Sim3& s, double factor) const {
+  if (!target_tree_) return 0.0;
+  const double radius = factor * std::max(target_spacing_, source_spacing_ * s.scale());
+  const double source_part = coveredFraction(source_, s, *target_tree_, radius);
+  // Target points towards the source: in source units the radius shrinks by the scale.
+  const double target_part = coveredFraction(target_, s.inverse(), *source_tree_, radius / s.scale());
+  return std::max(source_part, target_part);
+}
+
+Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
+  Refinement out;
+  if (!target_tree_) throw InputError("MapRegistration::refine: setClouds() first");
+  IcpOptions icp_options = options_.icp;
+  icp_options.estimate_scale = estimate_scale_;
+  auto t = Clock::now();
+  out.icp = alignIcp(source_, *target_tree_, initial, icp_options, &anchors);
+  out.ms_icp = msSince(t);
+  out.estimate = out.icp.transform;
+  out.status = out.icp.status;
+  out.message = out.icp.message;
+  if (out.icp.status != Status::kOk) return out;
+
+  t = Clock::now();
+  out.closed_form = computeIcpCovariance(out.icp.matches, out.icp.transform, icp_options.error_metric, estimate_scale_,
+                                         options_.covariance);
+  if (out.closed_form.status != Status::kOk) {
+    out.status = out.closed_form.status;
+    out.message = out.closed_form.message;
+    out.covariance = logScaleCovariance(out.closed_form, out.estimate.scale());
+    out.ms_covariance = msSince(t);
+    return out;
+  }
+  const int d = estimate_scale_ ? 7 : 6;
+  const Correspondences& m = out.icp.matches;
+  // The model covariance: the (calibrated) closed form of the ICP joined with the anchors'
+  // information; then covering the spread between spatial blocks and anchor groups.
+  const BlockSpread spread = blockSpreadCovariance(m, out.estimate, icp_options.error_metric, estimate_scale_, &anchors);
+  Matrix7d h_anchor = Matrix7d::Zero();
+  for (const PointMatch3& a : anchors) {
+    const Eigen::Vector3d y = out.estimate.apply(a.source);
+    const Eigen::Vector3d r = y - a.target;
+    const Eigen::Matrix3d w = a.covariance.inverse();
+    const double k = 1.0 / (1.0 + r.dot(w * r) / (2.4 * 2.4));
+    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y);
+    h_anchor.noalias() += k * j.transpose() * w * j;
+  }
+  const Matrix7d closed = logScaleCovariance(out.closed_form, out.estimate.scale());
+  const Matrix7d model = informationOf(informationOf(closed, d) + h_anchor, d);
+  out.covariance = model;
+  out.blocks = spread.clusters;
+  if (spread.ok) out.covariance = coveringCovariance(model, spread.sandwich, &out.block_spread_factor);
+  out.ms_covariance = msSince(t);
+  if (!out.covariance.allFinite()) {
+    out.status = Status::kDegenerate;
+    out.message = "refinement: the covariance is not finite";
+    return out;
+  }
+  std::ostringstream msg;
+  msg.precision(3);
+  msg << out.icp.message << "; covariance from " << m.source.cols() << " correspondences and " << anchors.size()
+      << " anchors in " << out.blocks << " block(s) and anchor group(s), block spread x" << out.block_spread_factor
+      << ", calibration x" << out.closed_form.inflation;
+  out.message = msg.str();
+  return out;
+}
+
+}  // namespace pcr_pro

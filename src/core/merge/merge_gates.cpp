@@ -1,0 +1,78 @@
+#include "pcr_pro/merge/merge_gates.h"
+
+#include <Eigen/Cholesky>
+
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+namespace pcr_pro {
+namespace {
+
+std::string fmt(double v, int precision = 3) {
+  std::ostringstream os;
+  os.precision(precision);
+  os << v;
+  return os.str();
+}
+
+}  // namespace
+
+MergeGates::MergeGates(const MergeGateOptions& options) : options_(options) { validate(options_); }
+
+GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinement& refinement,
+                              const MapRegistration& registration) const {
+  GateVerdict v;
+  const bool refined = refinement.status == Status::kOk || refinement.status == Status::kDegenerate;
+  std::string why;
+  if (refined) {
+    const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
+    const Eigen::LDLT<Matrix7d> ldlt(refinement.covariance + keyframes.covariance);
+    v.refinement_chi2 = ldlt.info() == Eigen::Success ? d.dot(ldlt.solve(d)) : std::numeric_limits<double>::infinity();
+    if (!std::isfinite(v.refinement_chi2)) v.refinement_chi2 = std::numeric_limits<double>::infinity();
+    v.rotation_correction_deg =
+        rotationDistance(refinement.estimate.rotation(), keyframes.estimate.rotation()) * 180.0 / M_PI;
+    v.scale_disagreement = std::abs(refinement.estimate.scale() / keyframes.estimate.scale() - 1.0);
+    if (v.refinement_chi2 > options_.refinement_agreement_chi2) {
+      why = "the refinement disagrees with the keyframe matches (squared Mahalanobis distance " +
+            fmt(v.refinement_chi2) + " > merge.refinement_agreement_chi2 " + fmt(options_.refinement_agreement_chi2) +
+            ")";
+    } else if (v.rotation_correction_deg > options_.max_icp_rotation_correction_deg) {
+      why = "the refinement rotated the keyframe estimate by " + fmt(v.rotation_correction_deg) +
+            " deg > merge.max_icp_rotation_correction_deg " + fmt(options_.max_icp_rotation_correction_deg);
+    } else if (v.scale_disagreement > options_.max_scale_disagreement) {
+      why = "the refinement changed the keyframe scale by " + fmt(100 * v.scale_disagreement) +
+            " % > merge.max_scale_disagreement " + fmt(100 * options_.max_scale_disagreement) + " %";
+    } else {
+      v.refinement_kept = true;
+    }
+  } else {
+    why = "the refinement failed (" + refinement.message + ")";
+  }
+  if (v.refinement_kept) {
+    v.estimate = refinement.estimate;
+    v.covariance = refinement.covariance * std::max(1.0, v.refinement_chi2 / 7.0);
+  } else {
+    v.estimate = keyframes.estimate;
+    v.covariance = keyframes.covariance;
+  }
+  v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor);
+  const std::string kept = v.refinement_kept ? "refined estimate" : "keyframe estimate kept: " + why;
+  if (v.overlap < options_.min_overlap) {
+    v.status = Status::kNoOverlap;
+    v.message = "refused: the aligned maps overlap by " + fmt(100 * v.overlap) + " % < merge.min_overlap " +
+                fmt(100 * options_.min_overlap) + " % (" + kept + ")";
+    return v;
+  }
+  if (!v.estimate.matrix().allFinite() || !v.covariance.allFinite()) {
+    v.status = Status::kDegenerate;
+    v.message = "the estimate or its covariance is not finite (" + kept + ")";
+    return v;
+  }
+  v.status = v.refinement_kept && refinement.status == Status::kDegenerate ? Status::kDegenerate : Status::kOk;
+  v.message = kept + ", overlap " + fmt(100 * v.overlap) + " %";
+  if (v.status == Status::kDegenerate) v.message = refinement.message + "; " + v.message;
+  return v;
+}
+
+}  // namespace pcr_pro
