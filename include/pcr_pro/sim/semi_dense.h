@@ -33,6 +33,10 @@ struct SemiDenseOptions {
   double idepth_noise = 0.01;
   /// Gradient at which the noise is idepth_noise [grey levels / px], > 0.
   double reference_gradient = 30.0;
+  /// Spatial correlation of the noise [px], in [0, 10]: the per-pixel noise is white noise
+  /// blurred by a Gaussian of this standard deviation (and rescaled to unit variance), as LSD's
+  /// regularisation makes neighbouring inverse depths agree; 0 = independent pixels.
+  double noise_correlation = 1.5;
   /// Fraction of the kept pixels whose inverse depth is wrong: the true one times a factor drawn
   /// log-uniformly from [1/3, 3] [-], in [0, 0.5]. They keep their pixel's variance, as LSD's
   /// outliers do.

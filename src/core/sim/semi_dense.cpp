@@ -22,6 +22,25 @@ std::string num(double v) {
 using sim_detail::gaussian;
 using sim_detail::uniform01;
 
+// Unit-variance Gaussian noise with a Gaussian correlation of `sigma` px (white noise blurred,
+// divided by the blur's gain sqrt(sum of squared weights)); empty when sigma is 0.
+cv::Mat noiseField(cv::Size size, double sigma, std::uint64_t seed) {
+  if (sigma <= 0.0) return cv::Mat();
+  std::mt19937_64 rng(seed);
+  cv::Mat white(size, CV_32FC1);
+  for (int r = 0; r < size.height; ++r) {
+    float* row = white.ptr<float>(r);
+    for (int c = 0; c < size.width; ++c) row[c] = static_cast<float>(gaussian(rng));
+  }
+  const int radius = static_cast<int>(std::ceil(4.0 * sigma));
+  const cv::Mat k = cv::getGaussianKernel(2 * radius + 1, sigma, CV_64F);
+  cv::Mat field;
+  cv::sepFilter2D(white, field, CV_32F, k, k, cv::Point(-1, -1), 0.0, cv::BORDER_REFLECT);
+  const double gain = cv::norm(k, cv::NORM_L2SQR);  // sum of squared 1D weights; 2D gain = gain^2
+  field *= 1.0 / gain;
+  return field;
+}
+
 }  // namespace
 
 void validate(const SemiDenseOptions& o) {
@@ -35,6 +54,9 @@ void validate(const SemiDenseOptions& o) {
   }
   if (!(o.outlier_fraction >= 0.0 && o.outlier_fraction <= 0.5)) fail("outlier_fraction", "in [0, 0.5]", o.outlier_fraction);
   if (o.subsample < 1) fail("subsample", ">= 1", o.subsample);
+  if (!(o.noise_correlation >= 0.0 && o.noise_correlation <= 10.0)) {
+    fail("noise_correlation", "in [0, 10]", o.noise_correlation);
+  }
 }
 
 SemiDenseKeyframe sampleSemiDense(const cv::Mat& grey, const cv::Mat& depth, const PinholeCamera& camera,
@@ -82,6 +104,7 @@ SemiDenseKeyframe sampleSemiDense(const cv::Mat& grey, const cv::Mat& depth, con
   }
   out.mean_true_idepth = sum_idepth / static_cast<double>(count);
   std::mt19937_64 rng(seed);
+  const cv::Mat field = noiseField(grey.size(), options.noise_correlation, sim_detail::subSeed(seed, 1));
   std::vector<Eigen::Vector3d> points;
   for (int r = 1; r + 1 < grey.rows; ++r) {
     for (int c = 1; c + 1 < grey.cols; ++c) {
@@ -90,7 +113,7 @@ SemiDenseKeyframe sampleSemiDense(const cv::Mat& grey, const cv::Mat& depth, con
       // Draw every random number of a candidate pixel, so that the stream does not depend on
       // which of them are kept.
       const double keep_draw = uniform01(rng), outlier_draw = uniform01(rng), factor_draw = uniform01(rng);
-      const double noise_draw = gaussian(rng);
+      const double noise_draw = field.empty() ? gaussian(rng) : field.at<float>(r, c);
       if (options.subsample > 1 && keep_draw * options.subsample >= 1.0) continue;
       const double true_idepth = 1.0 / z;
       const double rel = options.idepth_noise * std::clamp(options.reference_gradient / g, 0.5, 4.0);

@@ -156,6 +156,7 @@ void loadMapBlocks(Block* top, const std::string& origin, SimulatorOptions* o) {
   s.get("reference_gradient", &o->map.semi_dense.reference_gradient);
   s.get("outlier_fraction", &o->map.semi_dense.outlier_fraction);
   s.get("subsample", &o->map.semi_dense.subsample);
+  s.get("noise_correlation", &o->map.semi_dense.noise_correlation);
   s.finish();
   m.finish();
 }
@@ -289,7 +290,7 @@ std::string simulatorConfigYaml(const SimulatorOptions& o) {
     << "\nmap:\n  cloud_fraction: " << num(o.map.cloud_fraction) << "\n  depth_images: " << o.map.depth_images
     << "\n  semi_dense: {min_gradient: " << num(s.min_gradient) << ", idepth_noise: " << num(s.idepth_noise)
     << ", reference_gradient: " << num(s.reference_gradient) << ", outlier_fraction: " << num(s.outlier_fraction)
-    << ", subsample: " << s.subsample << "}\n";
+    << ", subsample: " << s.subsample << ", noise_correlation: " << num(s.noise_correlation) << "}\n";
   if (o.per_agent.empty()) {
     y << "per_agent: []\n";
   } else {
