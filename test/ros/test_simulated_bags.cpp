@@ -8,8 +8,13 @@
 #include <rosbag/view.h>
 #include <unistd.h>
 
+#include <sys/wait.h>
+
 #include <algorithm>
+#include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <map>
 #include <vector>
 
@@ -204,6 +209,60 @@ TEST_F(SimulatedBags, GraphUpdatesCorrectTheDrift) {
     }
   }
   EXPECT_GT(moved, 0) << "with drift, the loop closure must move keyframes";
+}
+
+// The tool: exit 2 with one line naming the option on bad input, 0 and the files otherwise.
+struct ToolRun {
+  int status = -1;
+  std::string err;
+};
+
+ToolRun runTool(const std::string& args) {
+  const fs::path err = fs::temp_directory_path() / ("pcr_pro_sim_tool_err_" + std::to_string(::getpid()));
+  const int raw = std::system((std::string(PCR_PRO_SIMULATE_BIN) + " " + args + " > /dev/null 2> " + err.string()).c_str());
+  ToolRun r;
+  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
+  std::ifstream in(err);
+  r.err.assign(std::istreambuf_iterator<char>(in), {});
+  fs::remove(err);
+  return r;
+}
+
+TEST(SimulateTool, BadInputIsOneLineAndExitTwo) {
+  const fs::path out = fs::temp_directory_path() / ("pcr_pro_sim_tool_" + std::to_string(::getpid()));
+  const std::vector<std::pair<std::string, std::string>> cases{
+      {"", "--output"},
+      {"--output " + out.string() + " --overlap 2", "--overlap 2: layout.overlap"},
+      {"--output " + out.string() + " --overlap x", "--overlap"},
+      {"--output " + out.string() + " --agents 0", "--agents"},
+      {"--output " + out.string() + " --bend-deg 90", "drift.bend_deg"},
+      {"--output " + out.string() + " --seed -4", "--seed"},
+      {"--output " + out.string() + " --config /nonexistent/sim.yaml", "/nonexistent/sim.yaml"},
+      {"--output " + out.string() + " --frobnicate", "--frobnicate"},
+  };
+  for (const auto& [args, named] : cases) {
+    const ToolRun r = runTool(args);
+    EXPECT_EQ(r.status, 2) << args;
+    EXPECT_NE(r.err.find(named), std::string::npos) << args << " -> " << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << args << " -> " << r.err;
+  }
+  EXPECT_FALSE(fs::exists(out));
+  EXPECT_EQ(runTool("--help").status, 0);
+}
+
+TEST(SimulateTool, WritesBundlesTruthAndBags) {
+  const fs::path out = fs::temp_directory_path() / ("pcr_pro_sim_tool_ok_" + std::to_string(::getpid()));
+  const fs::path config = fs::temp_directory_path() / ("pcr_pro_sim_tool_" + std::to_string(::getpid()) + ".yaml");
+  std::ofstream(config) << "trajectory: {max_keyframes: 2}\n";
+  const ToolRun r = runTool("--config " + config.string() + " --output " + out.string() + " --seed 3 --bags --quiet");
+  ASSERT_EQ(r.status, 0) << r.err;
+  for (const char* f : {"agent_a/bundle.yaml", "agent_b/map.pcd", "truth.yaml", "truth_agent_b_agent_a.yaml",
+                        "simulation.yaml", "summary.yaml", "pcr_pro_two_agents.bag", "lsd_slam_two_agents.bag"}) {
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  }
+  EXPECT_EQ(loadSimulatorConfig((out / "simulation.yaml").string()).seed, 3u);
+  fs::remove_all(out);
+  fs::remove(config);
 }
 
 }  // namespace

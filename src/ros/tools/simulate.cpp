@@ -67,16 +67,16 @@ pcr_pro::SimulatorOptions options(const pcr_pro::tools::Arguments& args) {
       throw UsageError("--agents: must be an integer in [1, 26], got '" + *text + "'");
     }
     ov.apply(&o, v);
+    // per_agent entries beyond --agents would be an error: --agents wins over the config.
+    if (o.per_agent.size() > static_cast<std::size_t>(o.agents)) o.per_agent.resize(static_cast<std::size_t>(o.agents));
+    try {  // the config was valid: an error now is this flag's
+      pcr_pro::validate(o);
+    } catch (const pcr_pro::InputError& e) {
+      throw UsageError(std::string(ov.flag) + " " + *text + ": " + e.what());
+    }
   }
   if (const auto seed = args.value("--seed")) o.seed = parseUnsigned("--seed", *seed);
   if (args.flag("--no-depth")) o.map.depth_images = "none";
-  // per_agent entries beyond --agents would be an error; --agents wins over the config.
-  if (o.per_agent.size() > static_cast<std::size_t>(o.agents)) o.per_agent.resize(static_cast<std::size_t>(o.agents));
-  try {
-    pcr_pro::validate(o);
-  } catch (const pcr_pro::InputError& e) {
-    throw UsageError(std::string("invalid option (command line or config): ") + e.what());
-  }
   return o;
 }
 
