@@ -204,6 +204,7 @@ RenderedView render(const World& world, const PinholeCamera& cam, const Sim3& ca
       }
       rasterizeRow(quads, cam, r, 0.0, 1.0, cam.width, options.near, centres.data());
       std::mt19937_64 rng(sim_detail::subSeed(seed, static_cast<std::uint64_t>(r)));
+      double noise_pair[2] = {0.0, 0.0};
       auto* image_row = out.image.ptr<std::uint8_t>(r);
       auto* depth_row = out.depth.ptr<float>(r);
       auto* quad_row = out.quad.ptr<int>(r);
@@ -231,7 +232,8 @@ RenderedView render(const World& world, const PinholeCamera& cam, const Sim3& ca
             sum += sampleTexture(tex, h.a, h.b, lambda);
           }
         }
-        const double noise = options.image_noise > 0.0 ? options.image_noise * sim_detail::gaussian(rng) : 0.0;
+        if (c % 2 == 0 && options.image_noise > 0.0) sim_detail::gaussianPair(rng, &noise_pair[0], &noise_pair[1]);
+        const double noise = options.image_noise * noise_pair[c % 2];
         image_row[c] = cv::saturate_cast<std::uint8_t>(sum / (ss * ss) + noise);
         const Hit& centre = centres[static_cast<std::size_t>(c)];
         depth_row[c] = centre.quad >= 0 ? centre.z : 0.0f;

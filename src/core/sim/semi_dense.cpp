@@ -28,9 +28,13 @@ cv::Mat noiseField(cv::Size size, double sigma, std::uint64_t seed) {
   if (sigma <= 0.0) return cv::Mat();
   std::mt19937_64 rng(seed);
   cv::Mat white(size, CV_32FC1);
-  for (int r = 0; r < size.height; ++r) {
-    float* row = white.ptr<float>(r);
-    for (int c = 0; c < size.width; ++c) row[c] = static_cast<float>(gaussian(rng));
+  float* data = white.ptr<float>(0);  // continuous
+  const std::size_t n = white.total();
+  for (std::size_t i = 0; i < n; i += 2) {
+    double a = 0.0, b = 0.0;
+    sim_detail::gaussianPair(rng, &a, &b);
+    data[i] = static_cast<float>(a);
+    if (i + 1 < n) data[i + 1] = static_cast<float>(b);
   }
   const int radius = static_cast<int>(std::ceil(4.0 * sigma));
   const cv::Mat k = cv::getGaussianKernel(2 * radius + 1, sigma, CV_64F);
