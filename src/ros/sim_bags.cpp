@@ -9,7 +9,9 @@ namespace ros_bridge {
 namespace {
 
 const ros::Time kStart(1600000000, 0);  // fixed time base: the bags are reproducible
-const double kStep = 0.25;              // seconds between messages
+// Seconds between messages of one bag: a played bag lasts (messages x kStep); at 0.1 s the demo
+// world's bags play in 2.5 s and 4.7 s.
+const double kStep = 0.1;
 
 LsdGraph graphMessage(const std::vector<std::pair<long, Sim3>>& poses, bool loop_closure) {
   LsdGraph g;
@@ -40,21 +42,21 @@ SimBagFiles writeSimulationBags(const std::string& dir, const Simulation& sim) {
   }
   ours.setCompression(rosbag::compression::LZ4);
   lsd.setCompression(rosbag::compression::LZ4);
-  ros::Time t = kStart;
-  const auto next = [&t] { return t = t + ros::Duration(kStep); };
+  ros::Time t_ours = kStart, t_lsd = kStart;  // each bag its own time line
+  const auto next = [](ros::Time& t) { return t = t + ros::Duration(kStep); };
   for (const SimAgent& agent : sim.agents) {
     const std::string ns = "/" + agent.name;
     const AgentMap& map = agent.map;
-    ours.write(ns + "/cloud", next(), cloudToMsg(map.cloud, map.frame_id, t));
+    ours.write(ns + "/cloud", next(t_ours), cloudToMsg(map.cloud, map.frame_id, t_ours));
     for (const MapKeyframe& kf : map.keyframes) {
-      ours.write(ns + "/keyframes", next(), keyframeToMsg(kf, map.camera, map.frame_id, t, true));
+      ours.write(ns + "/keyframes", next(t_ours), keyframeToMsg(kf, map.camera, map.frame_id, t_ours, true));
     }
     for (std::size_t k = 0; k < agent.keyframes.size(); ++k) {
       const LsdKeyframe kf = toLsdKeyframe(agent.keyframes[k], map.camera, static_cast<double>(k));
-      lsd.write(ns + "/lsd_slam/keyframes", next(), lsdKeyframeToMsg(kf));
-      lsd.write(ns + "/lsd_slam/graph", next(), lsdGraphToMsg(graphMessage(agent.graph_snapshots[k], false)));
+      lsd.write(ns + "/lsd_slam/keyframes", next(t_lsd), lsdKeyframeToMsg(kf));
+      lsd.write(ns + "/lsd_slam/graph", next(t_lsd), lsdGraphToMsg(graphMessage(agent.graph_snapshots[k], false)));
     }
-    lsd.write(ns + "/lsd_slam/graph", next(), lsdGraphToMsg(graphMessage(agent.graph_snapshots.back(), true)));
+    lsd.write(ns + "/lsd_slam/graph", next(t_lsd), lsdGraphToMsg(graphMessage(agent.graph_snapshots.back(), true)));
   }
   ours.close();
   lsd.close();

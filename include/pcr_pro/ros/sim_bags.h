@@ -1,8 +1,9 @@
 /**
  * @file sim_bags.h
- * @brief The two ROS bags of a simulated world (pcr_pro_simulate --bags), in the topics and
- * timing style of the shipped bags (pcr_pro_make_bags): a fixed time base, one message every
- * 0.25 s, the agents one after the other.
+ * @brief The two ROS bags of a simulated world (pcr_pro_simulate --bags), with the topics of the
+ * shipped bags (pcr_pro_make_bags) and their timing style: a fixed time base (1600000000 s), the
+ * agents one after the other; one message every 0.1 s in each bag (the shipped ones: 0.25 s over
+ * both), so that the demo world's bags play in a few seconds.
  */
 #pragma once
 
