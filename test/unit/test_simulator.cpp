@@ -640,6 +640,24 @@ TEST(SimTruth, OverlapIsControllable) {
   }
 }
 
+// The view-angle difference is controllable: the most co-visible keyframe pair of agent_a and
+// agent_b looks at the walls from directions that far apart. Each camera's yaw and pitch wobble
+// (6 and 4 deg by default) and the pair not sharing exactly one looked-at point allow 15 deg.
+TEST(SimTruth, ViewAngleIsControllable) {
+  for (double wanted : {10.0, 60.0}) {
+    SimulatorOptions o = quickOptions(69);
+    o.trajectory.max_keyframes = 6;
+    o.layout.view_angle_difference_deg = wanted;
+    const Simulation sim = simulate(o);
+    const auto& pairs = sim.pair(0, 1).keyframe_pairs;
+    ASSERT_FALSE(pairs.empty());
+    const auto best = std::max_element(pairs.begin(), pairs.end(), [](const SimKeyframePair& a, const SimKeyframePair& b) {
+      return a.covisible < b.covisible;
+    });
+    EXPECT_NEAR(best->view_angle_deg, wanted, 15.0) << "requested " << wanted;
+  }
+}
+
 // --- configuration ---------------------------------------------------------------------------------
 
 TEST(SimConfig, ShippedConfigIsTheDefaultsAndRoundTrips) {
