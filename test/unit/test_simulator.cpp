@@ -8,6 +8,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <numeric>
 #include <opencv2/imgproc.hpp>
@@ -442,6 +443,37 @@ TEST(SimBundle, WriterRoundTrip) {
   EXPECT_EQ(loadSimulatorConfig((nodepth / "simulation.yaml").string()).map.depth_images, "none");
   fs::remove_all(dir);
   fs::remove_all(nodepth);
+}
+
+TEST(SimBundle, WriterRefusesBadMapsNamingTheField) {
+  AgentMap map;
+  map.camera = PinholeCamera{525.0, 525.0, 319.5, 239.5, 64, 48};
+  map.cloud = Cloud::Random(3, 10);
+  MapKeyframe kf;
+  kf.id = 4;
+  kf.image = cv::Mat(48, 64, CV_8UC1, cv::Scalar(100));
+  map.keyframes = {kf, kf};
+  const fs::path dir = tempDir("bad_bundle");
+  const std::vector<std::pair<std::function<void(AgentMap*)>, std::string>> cases{
+      {[](AgentMap*) {}, "keyframes[1].id: duplicate id 4"},
+      {[](AgentMap* m) { m->keyframes.resize(1), m->keyframes[0].image = cv::Mat(10, 10, CV_8UC1); }, "keyframes[0].image"},
+      {[](AgentMap* m) { m->keyframes.resize(1), m->keyframes[0].pose = Sim3(0.0, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero()); },
+       "keyframes[0].pose"},
+      {[](AgentMap* m) { m->keyframes.resize(1), m->keyframes[0].depth = cv::Mat(48, 64, CV_16UC1); }, "keyframes[0].depth"},
+      {[](AgentMap* m) { m->camera.fx = 0.0; }, "camera"},
+  };
+  for (const auto& [spoil, field] : cases) {
+    AgentMap bad = map;
+    spoil(&bad);
+    try {
+      writeBundle(dir.string(), bad);
+      ADD_FAILURE() << "accepted, expected an error naming " << field;
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(field), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_THROW(writeBundle("/proc/pcr_pro_no_such_dir/x", map), InputError);
+  fs::remove_all(dir);
 }
 
 // --- drift ---------------------------------------------------------------------------------------
