@@ -7,6 +7,7 @@
  * - frontend/      SIFT/FLANN matching, relative pose, keyframe depth, Kalman-filter scale
  * - registration/  scale detection, filters, ICP, covariance, the cloud registration
  * - merge/         the merge of two agents' maps and the per-agent store
+ * - sim/           the synthetic multi-agent world: scene, renderer, LSD-like semi-dense maps, truth
  */
 #pragma once
 
@@ -20,6 +21,7 @@
 #include "pcr_pro/geometry/sim3.h"
 #include "pcr_pro/geometry/types.h"
 #include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/bundle_writer.h"
 #include "pcr_pro/io/cloud_io.h"
 #include "pcr_pro/io/input_limits.h"
 #include "pcr_pro/io/lsd_keyframe.h"
@@ -32,3 +34,7 @@
 #include "pcr_pro/registration/filters.h"
 #include "pcr_pro/registration/icp.h"
 #include "pcr_pro/registration/scale_detection.h"
+#include "pcr_pro/sim/render.h"
+#include "pcr_pro/sim/semi_dense.h"
+#include "pcr_pro/sim/simulator.h"
+#include "pcr_pro/sim/world.h"
