@@ -55,7 +55,7 @@ TEST_P(SimilarityIcp, RecoversScaleFromTenPercentFiveDegreeStart) {
   const bool p2p = o.error_metric == ErrorMetric::kPointToPoint;
   EXPECT_LT(e.rotation_deg, p2p ? 1.0 : 0.3) << "start " << e0.rotation_deg << ", iterations " << r.iterations;
   EXPECT_LT(e.scale_rel, 0.005) << "start " << e0.scale_rel;
-  EXPECT_LT(e.translation, 0.005 * size) << "start " << e0.translation;
+  EXPECT_LT(e.translation, (p2p ? 0.01 : 0.005) * size) << "start " << e0.translation;
 }
 
 INSTANTIATE_TEST_SUITE_P(Scales, SimilarityIcp,
@@ -76,8 +76,10 @@ TEST_P(RigidIcp, RecoversRotationFromIdentity) {
   const IcpResult r = alignIcp(source, target, Sim3::identity(), o);
   ASSERT_EQ(r.status, Status::kOk) << r.message;
   const Errors e = compare(r.transform, truth);
-  EXPECT_LT(e.rotation_deg, 0.3);
-  EXPECT_LT(e.translation, 0.005 * size);
+  // Point-to-point keeps the sampling bias of SimilarityIcp above, hence its looser bound.
+  const bool p2p = o.error_metric == ErrorMetric::kPointToPoint;
+  EXPECT_LT(e.rotation_deg, p2p ? 1.0 : 0.3);
+  EXPECT_LT(e.translation, (p2p ? 0.01 : 0.005) * size);
   EXPECT_DOUBLE_EQ(r.transform.scale(), 1.0);
 }
 
@@ -92,17 +94,16 @@ TEST(Icp, RealCarScansFromIdentityMatchGroundTruth) {
   for (ErrorMetric metric : {ErrorMetric::kPointToPlane, ErrorMetric::kPointToPoint}) {
     IcpOptions o;
     o.error_metric = metric;
-    // Point-to-point from identity needs a looser trim on this pair: with the default 0.8 it
-    // settles 1.5 deg off (a reason the default metric is point-to-plane).
-    if (metric == ErrorMetric::kPointToPoint) o.trim_ratio = 0.9;
     const IcpResult r = alignIcp(source, target, Sim3::identity(), o);
     ASSERT_EQ(r.status, Status::kOk) << errorMetricName(metric) << ": " << r.message;
     const Errors e = compare(r.transform, truth);
     EXPECT_LT(e.rotation_deg, 0.2) << errorMetricName(metric);
     EXPECT_LT(e.translation, 0.05) << errorMetricName(metric);
-    // Every sampled source point is matched (no distance limit) and the trim keeps its fraction.
+    // The scans overlap almost wholly: the overlap checks (reciprocal, adaptive gate) keep most of
+    // the sampled source points, and never more than the sample.
     ASSERT_GT(source.cols(), o.max_source_points);
-    EXPECT_EQ(r.correspondences, static_cast<int>(std::ceil(o.trim_ratio * o.max_source_points)));
+    EXPECT_LE(r.correspondences, static_cast<int>(std::ceil(o.trim_ratio * o.max_source_points)));
+    EXPECT_GT(r.correspondences, static_cast<int>(0.6 * o.trim_ratio * o.max_source_points));
   }
 }
 

@@ -866,7 +866,7 @@ TEST(SimMergeHalf, KeyframeGuessAtHalfOverlapIsWithinTheNoise) {
   EXPECT_LT(g.displacement, bound.point_noise);
 }
 
-TEST(SimMergeHalf, DISABLED_FullMergeAtHalfOverlapIsWithinTheNoise) {
+TEST(SimMergeHalf, FullMergeAtHalfOverlapIsWithinTheNoise) {
   const Simulation sim = simulate(mergeOptions(0.5));
   std::srand(1);
   const MergeResult r = mergeMaps(sim.agents[1].map, sim.agents[0].map, MergeRequest(), MergeOptions());

@@ -93,6 +93,13 @@ Eigen::Matrix<double, 7, 1> similarityDifference(const Sim3& a, const Sim3& b);
 Sim3 applyDelta(const Eigen::Matrix<double, 7, 1>& delta, const Sim3& s);
 
 /**
+ * @brief The adjoint of s in this convention: s · exp(ξ) = exp(Ad ξ) · s to first order, with
+ * Ad = [sR, [t]x R, -t; 0, R, 0; 0, 0, 1]. The covariance of s⁻¹ (left perturbation) is
+ * Ad(s⁻¹) Σ Ad(s⁻¹)ᵀ when Σ is that of s.
+ */
+Matrix7d similarityAdjoint(const Sim3& s);
+
+/**
  * @brief The smallest covariance (in the generalised-eigenvalue sense) that covers both a and b:
  * a^½ V max(Λ, 1) Vᵀ a^½ with V Λ Vᵀ the eigen-decomposition of a^-½ b a^-½. Directions where a is
  * zero take b's variance.

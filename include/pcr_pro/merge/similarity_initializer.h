@@ -45,7 +45,13 @@ struct KeyframeEstimate {
   Status status = Status::kScaleFailed;
   std::string message;
   Sim3 estimate;                           ///< S_target_source
-  Matrix7d covariance = Matrix7d::Zero();  ///< similarity_fit.h convention
+  /// Covariance of the estimate as the similarity where the maps overlap (similarity_fit.h
+  /// convention): the fit's and the pooled mean's, plus `between`, so that it covers the
+  /// similarity local to any of the overlapping keyframe pairs (each monocular map's scale drifts).
+  Matrix7d covariance = Matrix7d::Zero();
+  /// Spread of the pairs' own estimates beyond their noise (random effects), i.e. how much the
+  /// similarity varies over the overlap (map distortion, scale drift) [same convention].
+  Matrix7d between = Matrix7d::Zero();
   SimilarityFit fit;                       ///< of the pooled matches
   std::vector<PairEvidence> pairs;         ///< every verified pair, in the front end's order
   int anchor = -1;  ///< index in pairs of the edge's anchor pair (used pair with most inlier matches)

@@ -50,8 +50,11 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
     why = "the refinement failed (" + refinement.message + ")";
   }
   if (v.refinement_kept) {
+    // The refinement's covariance, scaled by the disagreement of two independent estimates, plus
+    // how much the similarity varies over the overlap (measured between the keyframe pairs): the
+    // edge stands for the similarity local to its anchor keyframes.
     v.estimate = refinement.estimate;
-    v.covariance = refinement.covariance * std::max(1.0, v.refinement_chi2 / 7.0);
+    v.covariance = refinement.covariance * std::max(1.0, v.refinement_chi2 / 7.0) + keyframes.between;
   } else {
     v.estimate = keyframes.estimate;
     v.covariance = keyframes.covariance;

@@ -330,27 +330,26 @@ KeyframeEstimate SimilarityInitializer::run(const AgentMap& source, const AgentM
   pooled.theta = to_delta * pooled.theta;
   pooled.covariance = to_delta * pooled.covariance * to_delta.transpose();
   pooled.between = to_delta * pooled.between * to_delta.transpose();
-  const Sim3 pooled_estimate = applyDelta(pooled.theta, ref);
-  // The pooled estimate's matches (for the refinement's anchors): every used pair's matches that
-  // fit it within the pair's noise and the between-pair spread.
+  // The keyframe estimate: one robust fit over the consensus pairs' matches and relative-pose
+  // rotations, so that each pair weighs by its evidence (a pair with many matches and a short
+  // baseline outweighs a wide, sparse one, whose errors its own covariance understates), from
+  // the random-effects centre. Its covariance covers both the fit's (noise, scaled by the
+  // residuals, and the spread between pairs with three or more) and the random-effects one.
   SimilarityFit fit;
   {
     std::vector<PointMatch3> all;
+    std::vector<RotationMeasurement> rotations;
     for (const PairEvidence& e : out.pairs) {
-      if (e.used) all.insert(all.end(), e.matches.begin(), e.matches.end());
+      if (!e.used) continue;
+      all.insert(all.end(), e.matches.begin(), e.matches.end());
+      rotations.push_back(e.rotation);
     }
-    fit.estimate = pooled_estimate;
-    fit.inliers.assign(all.size(), false);
-    SimilarityFitOptions fo;
-    for (std::size_t k = 0; k < all.size(); ++k) {
-      const Eigen::Vector3d r = pooled_estimate.apply(all[k].source) - all[k].target;
-      const Eigen::Matrix<double, 3, 7> j = similarityJacobian(pooled_estimate.apply(all[k].source));
-      const Eigen::Matrix3d c = all[k].covariance + j * pooled.between * j.transpose();
-      fit.inliers[k] = r.dot(c.ldlt().solve(r)) <= fo.outlier_chi2;
-      all[k].covariance = c;
-    }
+    fit = fitSimilarity(all, rotations, applyDelta(pooled.theta, ref));
+    if (!fit.ok) return finish(Status::kScaleFailed, "the keyframe pairs' matches do not determine a similarity");
     out.matches = std::move(all);
   }
+  const Sim3 pooled_estimate = fit.estimate;
+  const Matrix7d pooled_covariance = coveringCovariance(fit.covariance, pooled.covariance) + pooled.between;
   // Keep only the pooled inlier matches for the refinement.
   std::vector<PointMatch3> inliers;
   std::vector<int> per_pair(out.pairs.size(), 0);
@@ -369,7 +368,8 @@ KeyframeEstimate SimilarityInitializer::run(const AgentMap& source, const AgentM
   }
   out.fit = fit;
   out.estimate = pooled_estimate;
-  out.covariance = pooled.covariance;
+  out.covariance = pooled_covariance;
+  out.between = pooled.between;
   return finish(Status::kOk, std::to_string(out.used_pairs) + " keyframe pair(s) pooled, " +
                                  std::to_string(out.matches.size()) + " matches");
 }

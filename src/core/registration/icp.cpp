@@ -106,7 +106,10 @@ double applyKernel(const Cloud& moved, const Cloud& target, const Cloud* normals
   const double center = normals ? median(r) : 0.0;
   std::vector<double> dev(r.size());
   for (std::size_t k = 0; k < r.size(); ++k) dev[k] = std::abs(r[k] - center);
-  const double spread = std::max(1.4826 * median(dev), 0.01 * spacing);
+  // Point-to-point distances hold the sampling offset between the clouds (about half a spacing)
+  // besides the noise: the spread never falls below it there, or the kernel would weigh points
+  // by how well two samplings happen to line up.
+  const double spread = std::max(1.4826 * median(dev), (normals ? 0.01 : 0.5) * spacing);
   if (o.robust_kernel == RobustKernel::kNone || !(spread > 0.0)) return spread;
   const double c2 = std::pow(o.kernel_width * spread, 2);
   for (std::size_t k = 0; k < m->size(); ++k) (*m)[k].weight = 1.0 / (1.0 + r[k] * r[k] / c2);
