@@ -11,6 +11,8 @@ export PATH := /usr/bin:/bin:/usr/sbin:/sbin:$(PATH)
 BUILD_DIR ?= build
 BUILD_TYPE ?= Release
 JOBS ?= 2
+# Extra cmake -D options for the first configure, e.g. CMAKE_ARGS=-DPCR_PRO_DATA_DIR=/path/to/data
+CMAKE_ARGS ?=
 
 .PHONY: all deps configure build test demo bench bundles clean
 
@@ -20,7 +22,7 @@ deps:
 	@scripts/install_deps.sh build
 
 $(BUILD_DIR)/CMakeCache.txt:
-	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) -DCATKIN_DEVEL_PREFIX=$(CURDIR)/$(BUILD_DIR)/devel
+	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) -DCATKIN_DEVEL_PREFIX=$(CURDIR)/$(BUILD_DIR)/devel $(CMAKE_ARGS)
 
 configure: $(BUILD_DIR)/CMakeCache.txt
 
