@@ -34,10 +34,11 @@ inline std::string fromEnvironment(const char* name, const char* compiled) {
   return (value != nullptr && *value != '\0') ? std::string(value) : std::string(compiled);
 }
 
-inline std::optional<std::string> missing(const std::string& path, const char* variable, const std::string& dir) {
+inline std::optional<std::string> missing(const char* what, const std::string& path, const char* variable,
+                                          const std::string& dir) {
   std::error_code ec;
   if (std::filesystem::exists(path, ec)) return std::nullopt;
-  return "real data absent: " + path + " does not exist (" + variable + "=" + dir + ")";
+  return std::string(what) + " absent: " + path + " does not exist (" + variable + "=" + dir + ")";
 }
 }  // namespace detail
 
@@ -55,12 +56,13 @@ inline std::string realCasePath(const std::string& relative) { return realCasesD
 
 /// @return a one-line reason when dataPath(relative) does not exist, nothing when it does
 inline std::optional<std::string> missingData(const std::string& relative) {
-  return detail::missing(dataPath(relative), "PCR_PRO_DATA_DIR", dataDir());
+  return detail::missing("real data", dataPath(relative), "PCR_PRO_DATA_DIR", dataDir());
 }
 
 /// @return a one-line reason when realCasePath(relative) does not exist, nothing when it does
 inline std::optional<std::string> missingRealCase(const std::string& relative) {
-  std::optional<std::string> reason = detail::missing(realCasePath(relative), "PCR_PRO_REAL_CASES_DIR", realCasesDir());
+  std::optional<std::string> reason =
+      detail::missing("real two-agent cases", realCasePath(relative), "PCR_PRO_REAL_CASES_DIR", realCasesDir());
   if (reason) *reason += "; the build makes the cases when PCR_PRO_DATA_DIR holds the data";
   return reason;
 }
@@ -69,17 +71,17 @@ inline std::optional<std::string> missingRealCase(const std::string& relative) {
 }  // namespace pcr_pro
 
 /// Skips the current gtest (GTEST_SKIP) with the reason when the data set path is absent.
-#define PCR_PRO_REQUIRE_DATA(relative)                                                  \
-  do {                                                                                  \
-    if (const auto pcr_pro_missing_ = ::pcr_pro::test::missingData(relative)) {         \
-      GTEST_SKIP() << *pcr_pro_missing_;                                                \
-    }                                                                                   \
+#define PCR_PRO_REQUIRE_DATA(relative)                                          \
+  do {                                                                          \
+    if (const auto pcr_pro_missing_ = ::pcr_pro::test::missingData(relative)) { \
+      GTEST_SKIP() << *pcr_pro_missing_;                                        \
+    }                                                                           \
   } while (false)
 
 /// Skips the current gtest when the built real case path (relative to realCasesDir()) is absent.
-#define PCR_PRO_REQUIRE_REAL_CASE(relative)                                             \
-  do {                                                                                  \
-    if (const auto pcr_pro_missing_ = ::pcr_pro::test::missingRealCase(relative)) {     \
-      GTEST_SKIP() << *pcr_pro_missing_;                                                \
-    }                                                                                   \
+#define PCR_PRO_REQUIRE_REAL_CASE(relative)                                         \
+  do {                                                                              \
+    if (const auto pcr_pro_missing_ = ::pcr_pro::test::missingRealCase(relative)) { \
+      GTEST_SKIP() << *pcr_pro_missing_;                                            \
+    }                                                                               \
   } while (false)
