@@ -3,7 +3,7 @@
 #   make test   install missing Debian packages, build, run all tests (ctest)
 #   make build  configure (once) and build only
 #   make bench  build and run the benchmarks, regenerate docs/BENCHMARKS.md (BENCH_ARGS=--quick for a short run)
-#   make bundles  regenerate the two-agent test bundles in test/data/bundles
+#   The real two-agent cases are built with the build, from PCR_PRO_DATA_DIR (docs/FORMATS.md).
 # Debian's /usr/bin comes first on PATH: a pyenv python3 would break catkin.
 SHELL := /bin/bash
 export PATH := /usr/bin:/bin:/usr/sbin:/sbin:$(PATH)
@@ -14,7 +14,7 @@ JOBS ?= 2
 # Extra cmake -D options for the first configure, e.g. CMAKE_ARGS=-DPCR_PRO_DATA_DIR=/path/to/data
 CMAKE_ARGS ?=
 
-.PHONY: all deps configure build test demo bench bundles clean
+.PHONY: all deps configure build test demo bench clean
 
 all: build
 
@@ -41,10 +41,6 @@ bench:
 	@scripts/install_deps.sh bench
 	@$(MAKE) --no-print-directory build
 	scripts/bench.sh $(BUILD_DIR) $(BENCH_ARGS)
-
-bundles:
-	@scripts/install_deps.sh bundles
-	/usr/bin/python3 scripts/make_bundles.py
 
 # --- hardening (issue 6) -------------------------------------------------------------------
 #   make fuzz           build the libFuzzer targets (clang, build-fuzz/) and run each for FUZZ_SECONDS

@@ -171,7 +171,7 @@ constexpr std::uint64_t kSlambookSeed = 20240531;
 constexpr int kNyuBorderPx = 8;
 
 BuiltAgent slambookAgent(RgbdSequence& sequence, const std::string& name, const std::vector<long>& frames,
-                         const Sim3& world_to_map, const cv::Rect& crop) {
+                         const Sim3& world_to_map, const cv::Rect& crop, bool lsd_noise = true) {
   AgentSpec spec;
   spec.name = name;
   spec.frames = frames;
@@ -179,6 +179,10 @@ BuiltAgent slambookAgent(RgbdSequence& sequence, const std::string& name, const 
   spec.world_to_map = world_to_map;
   spec.crop = crop;
   spec.semi_dense = semiDense(kSlambookSubsample);
+  if (!lsd_noise) {
+    spec.semi_dense.idepth_noise = 0.0;
+    spec.semi_dense.outlier_fraction = 0.0;
+  }
   spec.seed = mixSeed(kSlambookSeed, static_cast<std::uint64_t>(crop.x + 1000 * crop.width));
   return buildAgent(sequence, spec);
 }
@@ -186,7 +190,9 @@ BuiltAgent slambookAgent(RgbdSequence& sequence, const std::string& name, const 
 // Both agents' clouds drawn from one world cloud, the semi-dense points of all their frames: each
 // point goes to an agent one of whose frames sees it, at random when both do. The clouds are then
 // independent samples of the same surfaces, so S_target_source is exact for their geometry too
-// (each agent's own cloud otherwise carries its own frames' pose errors).
+// (each agent's own cloud otherwise carries its own frames' pose errors). The points are the
+// measured depth of the gradient pixels without the LSD-like noise and outliers, so that what a
+// registration misses is its own error, not the data's.
 void shareWorld(BuiltAgent* a, BuiltAgent* b, const TruthOptions& options) {
   Cloud world(3, a->world_points.cols() + b->world_points.cols());
   world << a->world_points, b->world_points;
@@ -247,9 +253,11 @@ std::vector<CaseSummary> buildSlambook2Cases(RgbdSequence& sequence, const std::
   writeSlambookCase(output, "nodepth", a, b, 4, 5, true, false, sequence, both, &out);
   TruthOptions visibility;
   visibility.border_px = kNyuBorderPx;
+  a = slambookAgent(sequence, "agent_a", {1, 2, 4}, kSlambookTarget, cv::Rect(), false);
+  b = slambookAgent(sequence, "agent_b", {3, 5}, kSlambookSource, cv::Rect(), false);
   shareWorld(&a, &b, visibility);
   writeSlambookCase(output, "sharedworld", a, b, 4, 5, true, true, sequence,
-                    both + " Both clouds sampled from one world cloud (exact truth for the clouds).", &out);
+                    both + " Both clouds sampled from one noise-free world cloud (exact truth for the clouds).", &out);
   // Disjoint views: the right half of frame 1 against the left halves of frames 4 and 5.
   const BuiltAgent right = slambookAgent(sequence, "agent_a", {1}, kSlambookTarget, cv::Rect(320, 0, 320, 480));
   const BuiltAgent left = slambookAgent(sequence, "agent_b", {4, 5}, kSlambookSource, cv::Rect(0, 0, 320, 480));
