@@ -35,12 +35,14 @@ void validate(const AgentSpec& spec);
 
 /// A built agent and its truth.
 struct BuiltAgent {
-  AgentMap map;  ///< the bundle content; keyframe depth = the frame's measured depth [m] (camera units)
+  /// The bundle content: camera = the colour camera; keyframe depth = the frame's measured depth
+  /// registered to its colour image [m] (camera units).
+  AgentMap map;
   /// G_k: world [m] -> map near frame k. With scale drift every frame has its own: neighbouring
   /// frames agree, far ones do not. camera -> map of frame k = G_k * camera_to_world[k].
   std::map<long, Sim3> world_to_map;
   std::map<long, Sim3> camera_to_world;  ///< true pose of every frame of the window [m]
-  std::map<long, cv::Mat> depth;         ///< measured depth of every frame, cropped [m], 0 = none
+  std::map<long, cv::Mat> depth;         ///< registered depth of every frame, cropped [m], 0 = none
   Cloud world_points;                    ///< the map cloud's points in the world frame [m]
   std::vector<long> point_frames;        ///< the frame each cloud point was sampled in
   double path_length_m = 0.0;            ///< length of the camera path over the window [m]
@@ -50,12 +52,14 @@ struct BuiltAgent {
  * @brief Semi-dense points of one frame, as LSD-SLAM would keep them: sampleSemiDense() on the
  * frame's depth with the pixels near a depth discontinuity removed first. Near such an edge a
  * colour pixel can see the other side of the edge than its depth pixel: within one pixel when the
- * depth is registered to colour, within f * offset / z pixels when the depth camera sits `offset`
- * beside the colour camera (the parallax of that baseline at depth z).
+ * registration knows the cameras' extrinsic, within f * offset / z pixels when it takes them as
+ * one centre while the depth camera sits `offset` beside the colour camera (the parallax of that
+ * baseline at depth z).
  * @param[in] grey CV_8UC1 image of the camera's size
- * @param[in] depth CV_32FC1 depth [m] of the camera's size, 0 = none
+ * @param[in] depth CV_32FC1 depth [m] registered to grey, of the camera's size, 0 = none
  * @param[in] camera intrinsics of grey and depth
- * @param[in] depth_colour_offset_m distance between the depth and colour cameras [m], >= 0
+ * @param[in] depth_colour_offset_m baseline between the depth and colour cameras that the
+ *   registration ignored [m], >= 0
  * @param[in] options sampling options
  * @param[in] seed random seed
  * @return the sampled depth and points in the camera frame [m]

@@ -331,7 +331,8 @@ std::string truthExtraYaml(const CaseTruth& truth, const BuiltAgent& target, con
   y << "truth_accuracy:  # how far the truth itself can be from the real answer (target units unless stated)\n"
     << "  stated_pose: {rotation_deg: " << num(a.stated_rotation_deg)
     << ", translation_m: " << num(a.stated_translation_m) << "}\n"
-    << "  depth_colour_offset_m: " << num(a.depth_colour_offset_m) << "\n";
+    << "  depth_colour_offset_m: " << num(a.depth_colour_offset_m)
+    << "  # baseline between the depth and colour cameras, ignored when the depth was registered to colour\n";
   if (a.measured) {
     y << "  depth_check: {median_relative: " << num(a.measured_depth_rel, 4)
       << ", median_m: " << num(a.measured_depth_m, 4) << "}  # reference pair, through the true poses\n";

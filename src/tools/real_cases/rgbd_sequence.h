@@ -15,11 +15,13 @@
 namespace pcr_pro {
 namespace real_cases {
 
-/// One RGB-D frame.
+/// One RGB-D frame, in the colour camera (RgbdSequence::camera()).
 struct RgbdFrame {
   long id = 0;
-  cv::Mat grey;   ///< CV_8UC1, the colour image converted to grey
-  cv::Mat depth;  ///< CV_32FC1 depth along the optical axis [m], 0 = none
+  cv::Mat grey;  ///< CV_8UC1, the colour image converted to grey
+  /// CV_32FC1 depth along the colour camera's optical axis [m], registered to grey: pixel (r, c)
+  /// holds the depth of what grey shows at (r, c). 0 = none.
+  cv::Mat depth;
 };
 
 /// What a data set's own documentation says about its accuracy (its SOURCE.txt), used to state
@@ -28,19 +30,41 @@ struct SequenceFacts {
   std::string data_set;                ///< folder name in the data directory
   double pose_rotation_deg = 0.0;      ///< stated accuracy of the camera -> world rotations [deg]
   double pose_translation_m = 0.0;     ///< stated accuracy of the camera -> world positions [m]
-  double depth_colour_offset_m = 0.0;  ///< distance between the depth and colour cameras when the depth
-                                       ///< is not registered to colour, else 0 [m]
+  /// Distance between the depth and colour cameras that the registration of the depth to the
+  /// colour image ignores (registerDepth() takes them as one centre), else 0 [m].
+  double depth_colour_offset_m = 0.0;
   std::string note;                    ///< one line for the truth files
 };
+
+/**
+ * @brief Registers a depth image to a colour image: every depth pixel is back-projected with the
+ * depth camera's intrinsics and projected into the colour camera; where several land on one
+ * colour pixel the nearest depth wins (z-buffer). The two cameras are taken to share their
+ * centre and orientation (their extrinsic is not known for the data sets used here; see
+ * SequenceFacts::depth_colour_offset_m). Colour pixels that no depth pixel lands on stay 0.
+ * @param[in] depth CV_32FC1 depth [m] of depth_camera's size, 0 / non-finite = none
+ * @param[in] depth_camera intrinsics the depth was measured with
+ * @param[in] colour_camera intrinsics of the colour image
+ * @return CV_32FC1 depth along the colour camera's axis [m] of colour_camera's size, 0 = none
+ * @throw InputError when depth is not CV_32FC1 of depth_camera's size or a camera is invalid
+ */
+cv::Mat registerDepth(const cv::Mat& depth, const PinholeCamera& depth_camera, const PinholeCamera& colour_camera);
 
 /// A sequence of RGB-D frames with poses; images are read when first asked for.
 class RgbdSequence {
  public:
   using Loader = std::function<RgbdFrame(long id)>;
 
-  RgbdSequence(PinholeCamera camera, std::map<long, Sim3> poses, SequenceFacts facts, Loader loader);
+  /// @param[in] camera the colour camera (of the frames' grey images and registered depth)
+  /// @param[in] depth_camera the camera the depth was measured with (== camera when the data's
+  ///   depth is registered to colour)
+  RgbdSequence(PinholeCamera camera, PinholeCamera depth_camera, std::map<long, Sim3> poses, SequenceFacts facts,
+               Loader loader);
 
+  /// @return the colour camera: intrinsics of every frame's grey image and registered depth
   const PinholeCamera& camera() const { return camera_; }
+  /// @return the camera the depth images were measured with, before registerDepth()
+  const PinholeCamera& depthCamera() const { return depth_camera_; }
   const SequenceFacts& facts() const { return facts_; }
   /// @return the ids of every frame, in order
   std::vector<long> ids() const;
@@ -50,7 +74,7 @@ class RgbdSequence {
   const RgbdFrame& frame(long id);
 
  private:
-  PinholeCamera camera_;
+  PinholeCamera camera_, depth_camera_;
   std::map<long, Sim3> poses_;
   SequenceFacts facts_;
   Loader loader_;
@@ -58,15 +82,18 @@ class RgbdSequence {
 };
 
 /**
- * @brief Opens DIR = <data>/7scenes_redkitchen: camera-intrinsics.txt and
- * frames/frame-NNNNNN.{color.jpg,depth.png,pose.txt} (ids = NNNNNN).
+ * @brief Opens DIR = <data>/7scenes_redkitchen: camera-intrinsics.txt (the depth camera's) and
+ * frames/frame-NNNNNN.{color.jpg,depth.png,pose.txt} (ids = NNNNNN). The colour camera is the
+ * one measured on these frames (see kSevenScenesColourFocal in the source); each frame's depth
+ * is registered to its colour image with registerDepth().
  * @throw InputError naming the file when the intrinsics or a pose cannot be read
  */
 RgbdSequence openSevenScenes(const std::string& dir);
 
 /**
  * @brief Opens DIR = <data>/slambook2_ch5_rgbd: color/i.png, depth/i.pgm and pose.txt
- * (tx ty tz qx qy qz qw per line, frame i = line i, from 1).
+ * (tx ty tz qx qy qz qw per line, frame i = line i, from 1). Its depth is registered to colour
+ * already: one camera for both.
  * @throw InputError naming the file when pose.txt cannot be read
  */
 RgbdSequence openSlambook2(const std::string& dir);
