@@ -3,7 +3,7 @@
 #   make test   install missing Debian packages, build, run all tests (ctest)
 #   make build  configure (once) and build only
 #   make bench  build and run the benchmarks, regenerate docs/BENCHMARKS.md (BENCH_ARGS=--quick for a short run)
-#   make bundles  regenerate the two-agent test bundles in test/data/bundles
+#   The real two-agent cases are built with the build, from PCR_PRO_DATA_DIR (docs/FORMATS.md).
 # Debian's /usr/bin comes first on PATH: a pyenv python3 would break catkin.
 SHELL := /bin/bash
 export PATH := /usr/bin:/bin:/usr/sbin:/sbin:$(PATH)
@@ -11,8 +11,10 @@ export PATH := /usr/bin:/bin:/usr/sbin:/sbin:$(PATH)
 BUILD_DIR ?= build
 BUILD_TYPE ?= Release
 JOBS ?= 2
+# Extra cmake -D options for the first configure, e.g. CMAKE_ARGS=-DPCR_PRO_DATA_DIR=/path/to/data
+CMAKE_ARGS ?=
 
-.PHONY: all deps configure build test demo bench bundles clean
+.PHONY: all deps configure build test demo bench clean
 
 all: build
 
@@ -20,7 +22,7 @@ deps:
 	@scripts/install_deps.sh build
 
 $(BUILD_DIR)/CMakeCache.txt:
-	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) -DCATKIN_DEVEL_PREFIX=$(CURDIR)/$(BUILD_DIR)/devel
+	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) -DCATKIN_DEVEL_PREFIX=$(CURDIR)/$(BUILD_DIR)/devel $(CMAKE_ARGS)
 
 configure: $(BUILD_DIR)/CMakeCache.txt
 
@@ -39,10 +41,6 @@ bench:
 	@scripts/install_deps.sh bench
 	@$(MAKE) --no-print-directory build
 	scripts/bench.sh $(BUILD_DIR) $(BENCH_ARGS)
-
-bundles:
-	@scripts/install_deps.sh bundles
-	/usr/bin/python3 scripts/make_bundles.py
 
 # --- hardening (issue 6) -------------------------------------------------------------------
 #   make fuzz           build the libFuzzer targets (clang, build-fuzz/) and run each for FUZZ_SECONDS

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "common/data_dir.h"
 #include "pcr_pro/io/cloud_io.h"
 #include "pcr_pro/registration/covariance.h"
 #include "pcr_pro/registration/icp.h"
@@ -212,18 +213,23 @@ void covarianceScaling(int repeats) {
 int main(int argc, char** argv) {
   const bool quick = argc > 1 && std::string(argv[1]) == "--quick";
   const int repeats = quick ? 1 : 5;
-  const std::string data = PCR_PRO_TEST_DATA_DIR;
   try {
     std::printf("## ICP and covariance: pcr_pro vs PCL %s\n\n", PCL_VERSION_PRETTY);
     std::printf("Median of %d runs each, wall time, on this machine (%d hardware threads). Accuracy against "
                 "ground truth.\n", repeats, omp_get_num_procs());
-    Case car;
-    car.name = "real car scans (libpointmatcher), 401 -> 400";
-    car.source = readCloud(data + "/libpointmatcher_car/car_cloud401.csv");
-    car.target = readCloud(data + "/libpointmatcher_car/car_cloud400.csv");
-    car.truth = readCarTruth(data + "/libpointmatcher_car/carCloudList.csv");
-    car.max_distance = 1.0;
-    runCase(car, repeats);
+    // The real car scans come from the real-data directory (PCR_PRO_DATA_DIR, not shipped).
+    if (const auto missing = pcr_pro::test::missingData("libpointmatcher_car")) {
+      std::printf("\n### real car scans (libpointmatcher): skipped, %s\n", missing->c_str());
+    } else {
+      const std::string dir = pcr_pro::test::dataPath("libpointmatcher_car");
+      Case car;
+      car.name = "real car scans (libpointmatcher), 401 -> 400";
+      car.source = readCloud(dir + "/car_cloud401.csv");
+      car.target = readCloud(dir + "/car_cloud400.csv");
+      car.truth = readCarTruth(dir + "/carCloudList.csv");
+      car.max_distance = 1.0;
+      runCase(car, repeats);
+    }
     runCase(syntheticCase(50000), repeats);
     covarianceScaling(quick ? 1 : 11);
   } catch (const std::exception& e) {

@@ -3,10 +3,9 @@
 # Idempotent: asks apt only for packages that are not installed yet, and runs
 # `apt-get update` only when something is missing. Must run as root (or via sudo).
 #
-# Usage: scripts/install_deps.sh [build|bench|bundles|fuzz|sanitize|rviz]
+# Usage: scripts/install_deps.sh [build|bench|fuzz|sanitize|rviz]
 #   build (default)  everything `make build`, `make test` and `make demo` need
 #   bench            additionally what `make bench` needs
-#   bundles          additionally what scripts/make_bundles.py needs (Debian's Python 3)
 #   fuzz             additionally what `make fuzz` needs beyond the default (llvm-symbolizer)
 #   sanitize         additionally what `make test-sanitize` needs beyond the default
 #   rviz             additionally rviz and Xvfb (demo.launch rviz:=true, scripts/rviz_screenshot.sh)
@@ -36,14 +35,13 @@ packages=(
 case "$profile" in
   build) ;;
   bench) packages+=(libpcl-dev libopen3d-dev python3 python3-matplotlib python3-numpy) ;;
-  bundles) packages+=(python3 python3-numpy python3-opencv python3-yaml) ;;
   # make fuzz: the default list has clang; llvm-14 adds llvm-symbolizer for readable reports
   fuzz) packages+=(llvm-14) ;;
   # make test-sanitize: g++'s ASan/UBSan runtimes come with g++; llvm-14 for symbolised reports
   sanitize) packages+=(llvm-14) ;;
   # demo.launch rviz:=true and scripts/rviz_screenshot.sh
   rviz) packages+=(rviz xvfb imagemagick) ;;
-  *) echo "install_deps: unknown profile '$profile' (build|bench|bundles|fuzz|sanitize|rviz)" >&2; exit 2 ;;
+  *) echo "install_deps: unknown profile '$profile' (build|bench|fuzz|sanitize|rviz)" >&2; exit 2 ;;
 esac
 
 missing=()

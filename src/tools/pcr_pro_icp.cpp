@@ -1,4 +1,4 @@
-// pcr_pro_icp: register two point clouds (see CONTRACTS.md / README).
+// pcr_pro_icp: register two point clouds (command line, result YAML and exit statuses: docs/FORMATS.md).
 #include <iostream>
 #include <sstream>
 

@@ -1,4 +1,4 @@
-// pcr_pro_merge: offline merge of two map bundles (see CONTRACTS.md / README).
+// pcr_pro_merge: offline merge of two map bundles (command line, result YAML and exit statuses: docs/FORMATS.md).
 #include <cstdlib>
 #include <iostream>
 

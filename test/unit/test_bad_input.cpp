@@ -19,6 +19,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <ostream>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -32,7 +33,6 @@ namespace fs = std::filesystem;
 const std::string kDataDir = PCR_PRO_TEST_DATA_DIR;
 const std::string kAgentA = kDataDir + "/bundles/depth/agent_a";
 const std::string kAgentB = kDataDir + "/bundles/depth/agent_b";
-const std::string kCar400 = kDataDir + "/libpointmatcher_car/car_cloud400.csv";
 // A run longer than this is a hang (the slowest valid merge of the shipped bundles takes seconds).
 constexpr int kTimeoutSeconds = 120;
 
@@ -93,6 +93,29 @@ ToolRun runTool(const std::string& binary, const std::string& args) {
   r.out = readText(out);
   r.err = readText(err);
   return r;
+}
+
+// A valid cloud for the partner side of the cloud and configuration cases, written once: 3 x 400
+// points on three orthogonal planes (a well-conditioned ICP input) as CSV with a header.
+std::string goodCloud() {
+  static const std::string path = [] {
+    std::ostringstream csv;
+    csv << "x,y,z\n";
+    for (int plane = 0; plane < 3; ++plane) {
+      for (int i = 0; i < 20; ++i) {
+        for (int j = 0; j < 20; ++j) {
+          double p[3] = {0.0, 0.0, 0.0};
+          p[(plane + 1) % 3] = 0.1 * i;
+          p[(plane + 2) % 3] = 0.1 * j;
+          csv << p[0] << "," << p[1] << "," << p[2] << "\n";
+        }
+      }
+    }
+    const fs::path file = scratch() / "good_cloud.csv";
+    writeBytes(file, csv.str());
+    return file.string();
+  }();
+  return path;
 }
 
 /// Asserts the contract of bad input: exit 2, one line on stderr, naming `file` and each of `mentions`.
@@ -563,7 +586,7 @@ TEST_P(IcpBadCloud, ExitsTwoWithOneLineNamingFileAndField) {
     writeBytes(path, d.bytes);
   }
   std::string config;
-  std::string partner = kCar400;
+  std::string partner = goodCloud();
   if (!d.config.empty()) {
     config = " --config " + (scratch() / (d.name + ".yaml")).string();
     writeBytes(scratch() / (d.name + ".yaml"), d.config);
@@ -599,7 +622,7 @@ TEST_P(BadConfig, BothToolsExitTwoNamingFileAndKey) {
   }
   expectBadInput(runTool(PCR_PRO_MERGE_BIN, "--source " + kAgentB + " --target " + kAgentA + " --config " + path), path,
                  d.mentions);
-  expectBadInput(runTool(PCR_PRO_ICP_BIN, "--source " + kCar400 + " --target " + kCar400 + " --config " + path), path,
+  expectBadInput(runTool(PCR_PRO_ICP_BIN, "--source " + goodCloud() + " --target " + goodCloud() + " --config " + path), path,
                  d.mentions);
 }
 

@@ -7,6 +7,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <random>
+#include <sstream>
 
 #include "pcr_pro/io/cloud_io.h"
 #include "test_helpers.h"
@@ -49,10 +51,19 @@ void expectInputError(const CliRun& r, const std::string& file) {
   EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "not one line: " << r.err;
 }
 
-const std::string kCar400 = test::dataPath("libpointmatcher_car/car_cloud400.csv");
+// A valid partner cloud for the bad-input cases, written here: a synthetic scene as CSV.
+const std::string kGood = [] {
+  std::mt19937 rng(3);
+  const Cloud c = test::syntheticScene(2000, 5.0, rng);
+  std::ostringstream csv;
+  csv.precision(9);
+  csv << "x,y,z\n";
+  for (Eigen::Index i = 0; i < c.cols(); ++i) csv << c(0, i) << "," << c(1, i) << "," << c(2, i) << "\n";
+  return tempFile("good.csv", csv.str()).string();
+}();
 
 TEST(Cli, MissingFile) {
-  expectInputError(runIcp("--source /nonexistent/a.pcd --target " + kCar400), "/nonexistent/a.pcd");
+  expectInputError(runIcp("--source /nonexistent/a.pcd --target " + kGood), "/nonexistent/a.pcd");
 }
 
 TEST(Cli, UnreadableFile) {
@@ -60,48 +71,50 @@ TEST(Cli, UnreadableFile) {
   fs::permissions(p, fs::perms::none);
   const bool root = ::geteuid() == 0;  // root reads anything: use a directory instead
   const std::string path = root ? p.parent_path().string() : p.string();
-  expectInputError(runIcp("--source " + path + " --target " + kCar400), path);
+  expectInputError(runIcp("--source " + path + " --target " + kGood), path);
 }
 
 TEST(Cli, EmptyFile) {
   const fs::path p = tempFile("empty.pcd", "");
-  expectInputError(runIcp("--source " + p.string() + " --target " + kCar400), p.string());
+  expectInputError(runIcp("--source " + p.string() + " --target " + kGood), p.string());
   const fs::path q = tempFile("empty.csv", "x,y,z\n");
-  expectInputError(runIcp("--source " + kCar400 + " --target " + q.string()), q.string());
+  expectInputError(runIcp("--source " + kGood + " --target " + q.string()), q.string());
 }
 
 TEST(Cli, AllNanCloud) {
   const fs::path p = tempFile("nan.pcd",
                               "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\n"
                               "POINTS 2\nDATA ascii\nnan nan nan\nnan 1 2\n");
-  const CliRun r = runIcp("--source " + p.string() + " --target " + kCar400);
+  const CliRun r = runIcp("--source " + p.string() + " --target " + kGood);
   expectInputError(r, p.string());
   EXPECT_NE(r.err.find("NaN"), std::string::npos);
 }
 
 TEST(Cli, GarbageAndTruncatedFiles) {
   const fs::path g = tempFile("garbage.pcd", std::string("\x01\x02garbage\xff\n", 12));
-  expectInputError(runIcp("--source " + g.string() + " --target " + kCar400), g.string());
+  expectInputError(runIcp("--source " + g.string() + " --target " + kGood), g.string());
   const fs::path t = tempFile("truncated.pcd",
                               "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 100\nHEIGHT 1\n"
                               "POINTS 100\nDATA binary\n0123456789");
-  expectInputError(runIcp("--source " + t.string() + " --target " + kCar400), t.string());
+  expectInputError(runIcp("--source " + t.string() + " --target " + kGood), t.string());
 }
 
 TEST(Cli, BadUsage) {
-  EXPECT_EQ(runIcp("--source " + kCar400).status, 2);
-  EXPECT_EQ(runIcp("--source " + kCar400 + " --target " + kCar400 + " --bogus").status, 2);
-  EXPECT_EQ(runIcp("--source " + kCar400 + " --target " + kCar400 + " --initial \"1 2 3\"").status, 2);
+  EXPECT_EQ(runIcp("--source " + kGood).status, 2);
+  EXPECT_EQ(runIcp("--source " + kGood + " --target " + kGood + " --bogus").status, 2);
+  EXPECT_EQ(runIcp("--source " + kGood + " --target " + kGood + " --initial \"1 2 3\"").status, 2);
   const fs::path cfg = tempFile("bad.yaml", "icp:\n  stop:\n    max_iterations: -1\n");
-  expectInputError(runIcp("--source " + kCar400 + " --target " + kCar400 + " --config " + cfg.string()), cfg.string());
+  expectInputError(runIcp("--source " + kGood + " --target " + kGood + " --config " + cfg.string()), cfg.string());
   EXPECT_EQ(runIcp("--help").status, 0);
 }
 
 TEST(Cli, RegistersRealScansAndWritesOutputs) {
+  PCR_PRO_REQUIRE_DATA("libpointmatcher_car");
+  const std::string car400 = test::dataPath("libpointmatcher_car/car_cloud400.csv");
+  const std::string car401 = test::dataPath("libpointmatcher_car/car_cloud401.csv");
   const fs::path out = fs::temp_directory_path() / ("pcr_pro_cli_out_" + std::to_string(::getpid()));
   fs::remove_all(out);
-  const CliRun r = runIcp("--source " + test::dataPath("libpointmatcher_car/car_cloud401.csv") + " --target " + kCar400 +
-                       " --output " + out.string());
+  const CliRun r = runIcp("--source " + car401 + " --target " + car400 + " --output " + out.string());
   ASSERT_EQ(r.status, 0) << r.err << r.out;
   EXPECT_NE(r.out.find("status: OK"), std::string::npos);
   for (const char* key : {"scale:", "rotation:", "translation:", "covariance:", "information:", "fitness_rmse:",
@@ -112,7 +125,7 @@ TEST(Cli, RegistersRealScansAndWritesOutputs) {
   const std::string written((std::istreambuf_iterator<char>(yaml)), {});
   EXPECT_EQ(written, r.out);
   const Cloud fused = readPcd((out / "fused.pcd").string());
-  EXPECT_EQ(fused.cols(), readCloud(kCar400).cols() + readCloud(test::dataPath("libpointmatcher_car/car_cloud401.csv")).cols());
+  EXPECT_EQ(fused.cols(), readCloud(car400).cols() + readCloud(car401).cols());
 }
 
 }  // namespace

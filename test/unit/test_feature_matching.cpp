@@ -10,16 +10,20 @@
 #include <set>
 #include <string>
 
+#include "common/data_dir.h"
 #include "pcr_pro/frontend/feature_matching.h"
 
 namespace pcr_pro {
 namespace {
 
-const std::string kColorDir = std::string(PCR_PRO_TEST_DATA_DIR) + "/slambook2_ch5_rgbd/color/";
+// Real textured frames (slambook2 ch5, NYU Depth V2) from the real-data directory; the tests that
+// use them are skipped when it is absent.
+const char* const kColorDir = "slambook2_ch5_rgbd/color";
 
 cv::Mat loadGray(const std::string& name) {
-  const cv::Mat img = cv::imread(kColorDir + name, cv::IMREAD_GRAYSCALE);
-  EXPECT_FALSE(img.empty()) << "cannot read " << kColorDir + name;
+  const std::string path = test::dataPath(std::string(kColorDir) + "/" + name);
+  const cv::Mat img = cv::imread(path, cv::IMREAD_GRAYSCALE);
+  EXPECT_FALSE(img.empty()) << "cannot read " << path;
   return img;
 }
 
@@ -63,6 +67,7 @@ void expectConsistent(const FeatureMatches& m, const KeyframeFeatures& a, const 
 // Matches 1.png with a copy warped by a known homography (rotation 20 deg about the centre,
 // scale 0.8); the matched pixels must agree with the homography.
 TEST(FeatureMatching, WarpedImageAgreesWithHomography) {
+  PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
   const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
@@ -98,6 +103,7 @@ TEST(FeatureMatching, WarpedImageAgreesWithHomography) {
 
 // A stricter ratio test keeps fewer matches, a looser one more; the symmetric check only removes.
 TEST(FeatureMatching, RatioTestAndSymmetricCheckFilter) {
+  PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
   const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
@@ -123,6 +129,7 @@ TEST(FeatureMatching, RatioTestAndSymmetricCheckFilter) {
 
 // Two real consecutive frames of the RGB-D sequence.
 TEST(FeatureMatching, RealFramesTwoAndThree) {
+  PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat a = loadGray("2.png");
   const cv::Mat b = loadGray("3.png");
   ASSERT_FALSE(a.empty());
@@ -137,6 +144,7 @@ TEST(FeatureMatching, RealFramesTwoAndThree) {
 }
 
 TEST(FeatureMatching, PairVotesRankTheOverlappingKeyframesFirst) {
+  PCR_PRO_REQUIRE_DATA(kColorDir);
   // Source keyframes 3 and 5, target keyframes 1, 2, 4 and a mirrored frame 2 (the same texture,
   // but SIFT descriptors do not match mirrored patches). Essential-matrix inliers of the real
   // pairs (test/data/bundles/overlap_checks.yaml): 3: 2 -> 68, 4 -> 61, 1 -> 23; 5: 4 -> 143,
@@ -175,6 +183,8 @@ TEST(FeatureMatching, BlackAndEmptyImagesGiveNoMatches) {
   const KeyframeFeatures ftiny = extractFeatures(cv::Mat(1, 1, CV_8UC1, cv::Scalar(7)), o);
   EXPECT_TRUE(ftiny.keypoints.empty());
 
+  // The rest needs a real textured image.
+  PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
   const KeyframeFeatures freal = extractFeatures(img, o);
@@ -204,6 +214,8 @@ TEST(FeatureMatching, BadInputThrows) {
   EXPECT_THROW(extractFeatures(cv::Mat::zeros(10, 10, CV_16UC1), o), InputError);
   EXPECT_THROW(extractFeatures(cv::Mat::zeros(10, 10, CV_32FC1), o), InputError);
 
+  // The rest needs a real textured image.
+  PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
   const KeyframeFeatures f = extractFeatures(img, o);
@@ -217,6 +229,7 @@ TEST(FeatureMatching, BadInputThrows) {
 
 // Descriptors of another type (here 8-bit) are converted and still match themselves.
 TEST(FeatureMatching, NonFloatDescriptorsAreConverted) {
+  PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
   const FeatureMatchingOptions o;
@@ -233,6 +246,7 @@ TEST(FeatureMatching, NonFloatDescriptorsAreConverted) {
 // structures as full-resolution SIFT finds (most within 2 px of a full-resolution keypoint
 // of similar size), and a warped copy still matches through the homography.
 TEST(FeatureMatching, HalfScaleKeypointsAreInFullResolutionPixels) {
+  PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
   FeatureMatchingOptions full;

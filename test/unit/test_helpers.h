@@ -9,12 +9,11 @@
 #include <sstream>
 #include <string>
 
+#include "common/data_dir.h"
 #include "pcr_pro/geometry/sim3.h"
 
 namespace pcr_pro {
 namespace test {
-
-inline std::string dataPath(const std::string& relative) { return std::string(PCR_PRO_TEST_DATA_DIR) + "/" + relative; }
 
 inline double deg(double rad) { return rad * 180.0 / M_PI; }
 inline double rad(double deg) { return deg * M_PI / 180.0; }
@@ -51,7 +50,8 @@ inline Cloud syntheticScene(int n, double size, std::mt19937& rng) {
   return c;
 }
 
-/// Reads the ground truth gT (401 -> 400) from carCloudList.csv.
+/// Reads the ground truth gT (401 -> 400) from the real data's libpointmatcher_car/carCloudList.csv
+/// (callers skip first with PCR_PRO_REQUIRE_DATA).
 inline Sim3 carGroundTruth() {
   std::ifstream in(dataPath("libpointmatcher_car/carCloudList.csv"));
   std::string line;

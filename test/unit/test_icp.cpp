@@ -88,6 +88,7 @@ INSTANTIATE_TEST_SUITE_P(Angles, RigidIcp,
                                             ::testing::Values(ErrorMetric::kPointToPoint, ErrorMetric::kPointToPlane)));
 
 TEST(Icp, RealCarScansFromIdentityMatchGroundTruth) {
+  PCR_PRO_REQUIRE_DATA("libpointmatcher_car");
   const Cloud target = readCloud(test::dataPath("libpointmatcher_car/car_cloud400.csv"));
   const Cloud source = readCloud(test::dataPath("libpointmatcher_car/car_cloud401.csv"));
   const Sim3 truth = test::carGroundTruth();
@@ -110,6 +111,7 @@ TEST(Icp, RealCarScansFromIdentityMatchGroundTruth) {
 TEST(Icp, RealCarScanWithKnownSimilarity) {
   // A known scale / rotation / translation applied to a real scan: ICP with scale from a start
   // 10 % / 5 deg away recovers it.
+  PCR_PRO_REQUIRE_DATA("libpointmatcher_car/car_cloud400.csv");
   const Cloud target = readCloud(test::dataPath("libpointmatcher_car/car_cloud400.csv"));
   std::mt19937 rng(5);
   const Sim3 truth(0.4, test::randomRotation(rng, test::rad(60)), Eigen::Vector3d(3, -1, 2));

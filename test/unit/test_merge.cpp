@@ -1,5 +1,6 @@
-// End-to-end merges of the shipped real two-agent bundles (made from real Kinect frames, see
-// test/data/bundles/README.md), at scale ratios from 0.1 to 10, and refusal of a non-overlapping pair.
+// End-to-end merges of the real slambook2 two-agent cases that the build makes from the real data
+// (BUILD/real_cases/slambook2, pcr_pro_make_real_cases; skipped with the reason when absent), at
+// scale ratios from 0.1 to 10, and refusal of a non-overlapping pair.
 #include <gtest/gtest.h>
 
 #include <sys/wait.h>
@@ -15,8 +16,8 @@ namespace pcr_pro {
 namespace {
 
 // Tolerances the approximate poses of the data allow (slambook2 poses are good to about 1 deg /
-// a few cm; the two agents' maps inherit that disagreement): rotation, relative scale, and
-// translation in target units (the target agent is in metres).
+// a few cm, the truth files' truth_accuracy; the two agents' maps inherit that disagreement):
+// rotation, relative scale, and translation in target units (the target agent is in metres).
 constexpr double kRotationTolDeg = 1.0;
 constexpr double kScaleTol = 0.015;
 constexpr double kTranslationTol = 0.12;
@@ -45,7 +46,8 @@ class MergeScaleRatios : public ::testing::TestWithParam<std::tuple<std::string,
 TEST_P(MergeScaleRatios, RecoversTheKnownSimilarity) {
   const std::string variant = std::get<0>(GetParam());
   const double ratio = std::get<1>(GetParam());  // wanted scale of S_target_source
-  const std::string dir = test::dataPath("bundles/" + variant);
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/" + variant);
+  const std::string dir = test::realCasePath("slambook2/" + variant);
   const BundleTruth truth = loadBundleTruth(dir + "/truth.yaml");
   const AgentMap target = loadBundle(dir + "/agent_a");
   // Rescale the source map so that S_target_source has the wanted scale.
@@ -77,7 +79,8 @@ INSTANTIATE_TEST_SUITE_P(Bundles, MergeScaleRatios,
                          });
 
 TEST(Merge, GivenKeyframesAreUsed) {
-  const std::string dir = test::dataPath("bundles/depth");
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/depth");
+  const std::string dir = test::realCasePath("slambook2/depth");
   MergeRequest req;
   req.source_keyframe = 3;
   req.target_keyframe = 2;
@@ -92,11 +95,12 @@ TEST(Merge, GivenKeyframesAreUsed) {
 }
 
 TEST(Merge, SharedWorldCloudsAreRegisteredToTheirExactTruth) {
-  // Both clouds sample one world cloud (see test/data/bundles/README.md): the truth is exact for
+  // Both clouds sample one world cloud (see docs/FORMATS.md, real cases): the truth is exact for
   // them, so the merge must be far tighter than the real bundles' tolerances (measured 0.04°,
   // 4 mm, 0.01 % at full density; 0.03-0.24 % of the extent and 0.03 % scale with 30 % of the
   // points). The keyframe guess alone is 0.16°, 6 cm, 0.35 %.
-  const std::string dir = test::dataPath("bundles/sharedworld");
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/sharedworld");
+  const std::string dir = test::realCasePath("slambook2/sharedworld");
   const AgentMap target = loadBundle(dir + "/agent_a"), source = loadBundle(dir + "/agent_b");
   const Sim3 truth = loadBundleTruth(dir + "/truth.yaml").target_source;
   const MergeResult r = mergeMaps(source, target, MergeRequest(), MergeOptions());
@@ -112,7 +116,8 @@ TEST(Merge, SharedWorldCloudsAreRegisteredToTheirExactTruth) {
 TEST(Merge, VotePreselectionKeepsTheBestPair) {
   // 3 x 2 keyframes = 6 pairs; matching only the 2 with most descriptor votes must still find
   // the pair that the full search picks.
-  const std::string dir = test::dataPath("bundles/depth");
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/depth");
+  const std::string dir = test::realCasePath("slambook2/depth");
   const AgentMap target = loadBundle(dir + "/agent_a"), source = loadBundle(dir + "/agent_b");
   const MergeResult all = mergeMaps(source, target, MergeRequest(), MergeOptions());
   MergeOptions two;
@@ -128,7 +133,8 @@ TEST(Merge, VotePreselectionKeepsTheBestPair) {
 }
 
 TEST(Merge, NonOverlappingMapsAreRefused) {
-  const std::string dir = test::dataPath("bundles/nooverlap");
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/nooverlap");
+  const std::string dir = test::realCasePath("slambook2/nooverlap");
   ASSERT_FALSE(loadBundleTruth(dir + "/truth.yaml").overlap);
   const MergeResult r = mergeMaps(loadBundle(dir + "/agent_b"), loadBundle(dir + "/agent_a"), MergeRequest(), MergeOptions());
   EXPECT_NE(r.report.status, Status::kOk);
@@ -136,7 +142,8 @@ TEST(Merge, NonOverlappingMapsAreRefused) {
 }
 
 TEST(Merge, UnknownKeyframeAndBadMapsGiveInvalidInput) {
-  const std::string dir = test::dataPath("bundles/depth");
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/depth");
+  const std::string dir = test::realCasePath("slambook2/depth");
   const AgentMap a = loadBundle(dir + "/agent_a"), b = loadBundle(dir + "/agent_b");
   MergeRequest req;
   req.source_keyframe = 99;
@@ -194,7 +201,8 @@ CliRun runMerge(const std::string& args) {
 
 TEST(MergeCli, MergesWritesOutputsAndRefuses) {
   namespace fs = std::filesystem;
-  const std::string dir = test::dataPath("bundles/depth");
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/depth");
+  const std::string dir = test::realCasePath("slambook2/depth");
   const fs::path out = fs::temp_directory_path() / ("pcr_pro_merge_out_" + std::to_string(::getpid()));
   fs::remove_all(out);
   const CliRun ok = runMerge("--source " + dir + "/agent_b --target " + dir + "/agent_a --output " + out.string());
@@ -206,7 +214,8 @@ TEST(MergeCli, MergesWritesOutputsAndRefuses) {
   }
   EXPECT_TRUE(fs::exists(out / "result.yaml"));
   EXPECT_TRUE(fs::exists(out / "fused.pcd"));
-  const std::string no = test::dataPath("bundles/nooverlap");
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/nooverlap");
+  const std::string no = test::realCasePath("slambook2/nooverlap");
   const CliRun refused = runMerge("--source " + no + "/agent_b --target " + no + "/agent_a");
   EXPECT_EQ(refused.status, 1);
   EXPECT_NE(refused.out.find("message:"), std::string::npos);
@@ -214,7 +223,8 @@ TEST(MergeCli, MergesWritesOutputsAndRefuses) {
 }
 
 TEST(MergeCli, BadInputExitsTwoNamingTheFile) {
-  const std::string dir = test::dataPath("bundles/depth");
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/depth");
+  const std::string dir = test::realCasePath("slambook2/depth");
   const CliRun missing = runMerge("--source /nonexistent/bundle --target " + dir + "/agent_a");
   EXPECT_EQ(missing.status, 2);
   EXPECT_NE(missing.err.find("/nonexistent/bundle"), std::string::npos) << missing.err;

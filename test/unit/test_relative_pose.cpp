@@ -14,6 +14,7 @@
 #include <utility>
 #include <vector>
 
+#include "common/data_dir.h"
 #include "pcr_pro/frontend/feature_matching.h"
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/frontend/relative_pose.h"
@@ -288,7 +289,8 @@ TEST(RelativePose, BearingsFromPinholeCameraWithDifferentIntrinsics) {
 // rotation, hence bounds of 2 deg (rotation) and 5 deg (translation direction). The inverse
 // convention would be off by about twice the relative rotation (11 deg and more here).
 TEST(RelativePose, RealFramesAgreeWithReferencePoses) {
-  const std::string dir = std::string(PCR_PRO_TEST_DATA_DIR) + "/slambook2_ch5_rgbd/";
+  PCR_PRO_REQUIRE_DATA("slambook2_ch5_rgbd");
+  const std::string dir = test::dataPath("slambook2_ch5_rgbd/");
   std::ifstream poses(dir + "pose.txt");
   ASSERT_TRUE(poses.good());
   std::vector<Eigen::Matrix3d> r_w;

@@ -1,7 +1,8 @@
 /**
  * @file bundle.h
- * @brief Reading one agent's map bundle (the offline input of the merge, see CONTRACTS.md
- * "Map bundle") and the ground truth of the generated two-agent test cases.
+ * @brief Reading one agent's map bundle (the offline input of the merge, see docs/FORMATS.md
+ * "Map bundle") and the ground truth of two-agent test cases (docs/FORMATS.md "Truth of a
+ * two-agent case").
  */
 #pragma once
 
@@ -43,8 +44,8 @@ namespace pcr_pro {
 AgentMap loadBundle(const std::string& dir, const InputLimits& limits = InputLimits());
 
 /**
- * @brief Ground truth of a generated two-agent case (test/data/bundles/CASE/truth.yaml,
- * written by scripts/make_bundles.py).
+ * @brief Ground truth of a two-agent case (CASE/truth.yaml, written by writeBundleTruth(); see
+ * docs/FORMATS.md for its keys and for how S_target_source is defined when the maps drift).
  */
 struct BundleTruth {
   std::string target_agent = "agent_a";  ///< bundle directory name of the target agent
