@@ -167,7 +167,10 @@ void waitForBag(const std::string& file, DiagnosticsWatcher& diagnostics) {
   for (const auto& [agent, n] : counts) {
     ASSERT_TRUE(diagnostics.waitFor("agent " + agent, "messages_received", std::to_string(n), 90.0))
         << agent << ": the node did not receive the bag's " << n << " messages (has "
-        << diagnostics.value("agent " + agent, "messages_received") << ")";
+        << diagnostics.value("agent " + agent, "messages_received") << ", rejected "
+        << diagnostics.value("agent " + agent, "messages_rejected") << ": "
+        << diagnostics.value("agent " + agent, "last_rejection") << "; keyframes "
+        << diagnostics.value("agent " + agent, "keyframe_ids") << ")";
   }
 }
 
@@ -776,18 +779,29 @@ constexpr double kMergeWait = 60.0;
 
 class AutoMerge : public Live {
  protected:
-  /// Publishes the given keyframes of an agent's bundle (and its cloud), all moved by `moved`.
-  void publish(const std::string& agent, const std::set<long>& ids, bool cloud, const Sim3& moved = Sim3(),
-               const Eigen::Vector3d& cloud_offset = Eigen::Vector3d::Zero()) {
+  /**
+   * Publishes the given keyframes of an agent's bundle (and first its cloud), all moved by `moved`,
+   * one message after the other: each once the node has taken the one before (its
+   * messages_received), so that they arrive in this order (two topics are two connections).
+   */
+  void publish(DiagnosticsWatcher& diagnostics, const std::string& agent, const std::set<long>& ids, bool cloud,
+               const Sim3& moved = Sim3(), const Eigen::Vector3d& cloud_offset = Eigen::Vector3d::Zero()) {
     AgentMap map = loadBundle(kDataDir + "/bundles/depth/" + agent);
+    long received = number(diagnostics, "agent " + agent, "messages_received");
+    const auto taken = [&] {
+      ASSERT_TRUE(diagnostics.waitFor("agent " + agent, "messages_received", std::to_string(++received)))
+          << agent << ": a message was not taken";
+    };
     if (cloud) {
       const Cloud c = moved.apply(map.cloud).colwise() + cloud_offset;
       clouds_[agent].publish(cloudToMsg(c, map.frame_id, ros::Time::now()));
+      taken();
     }
     for (MapKeyframe& kf : map.keyframes) {
       if (!ids.count(kf.id)) continue;
       kf.pose = moved * kf.pose;
       keyframes_[agent].publish(keyframeToMsg(kf, map.camera, map.frame_id, ros::Time::now()));
+      taken();
     }
   }
 };
@@ -796,21 +810,22 @@ TEST_F(AutoMerge, AnEdgeAppearsIsRefreshedAndAFailedReMergeKeepsTheLastGoodOne) 
   DiagnosticsWatcher diagnostics(nh_);
   Latest<pcr_pro::MapEdge> edge(nh_, "merge_node/edge");
   ASSERT_TRUE(diagnostics.waitFor("merge", "auto_merge", "into agent_a"));
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_received", "0"));
   // 1. agent_b has one keyframe, fewer than auto_merge/min_keyframes (2): nothing happens.
-  publish("agent_a", {1, 2}, true);
-  publish("agent_b", {3}, true);
+  publish(diagnostics, "agent_a", {1, 2}, true);
+  publish(diagnostics, "agent_b", {3}, true);
   ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", "1, 2"));
   ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "keyframe_ids", "3"));
   ros::WallDuration(1.5).sleep();  // five checks (auto_merge/period 0.3 s)
   EXPECT_EQ(diagnostics.value("merge", "merges_auto"), "0");
   EXPECT_FALSE(edge.get()) << "merged before agent_b had min_keyframes";
   // 2. agent_b's second keyframe: the first automatic merge.
-  publish("agent_b", {5}, false);
+  publish(diagnostics, "agent_b", {5}, false);
   const auto first = waitUntil<pcr_pro::MapEdge>(edge, [](const auto&) { return true; }, kMergeWait);
   ASSERT_TRUE(first) << "no automatic merge: " << diagnostics.value("merge", "last_status");
   expectNear(edgeFromMsg(*first).target_source, truth(), "first automatic merge");
   // 3. One new keyframe of agent_a (auto_merge/new_keyframes 1): merged again.
-  publish("agent_a", {4}, false);
+  publish(diagnostics, "agent_a", {4}, false);
   const auto second = waitUntil<pcr_pro::MapEdge>(
       edge, [&](const auto& e) { return e.header.stamp > first->header.stamp; }, kMergeWait);
   ASSERT_TRUE(second) << "no merge after agent_a grew";
@@ -818,7 +833,7 @@ TEST_F(AutoMerge, AnEdgeAppearsIsRefreshedAndAFailedReMergeKeepsTheLastGoodOne) 
   // 4. agent_b's keyframes re-sent, moved by G (as after a loop closure): merged again, to S * G^-1.
   const Sim3 g(0.8, Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d(1.0, 0.4, -0.2).normalized())),
                Eigen::Vector3d(0.4, -0.3, 0.6));
-  publish("agent_b", {3, 5}, true, g);
+  publish(diagnostics, "agent_b", {3, 5}, true, g);
   const Sim3 moved_truth = truth() * g.inverse();
   const auto third = waitUntil<pcr_pro::MapEdge>(
       edge, [&](const auto& e) { return e.header.stamp > second->header.stamp && near(e, moved_truth); }, kMergeWait);
@@ -834,8 +849,7 @@ TEST_F(AutoMerge, AnEdgeAppearsIsRefreshedAndAFailedReMergeKeepsTheLastGoodOne) 
     failed = f;
     ok = o;
   }
-  publish("agent_b", {}, true, g, Eigen::Vector3d(500.0, 0.0, 0.0));
-  ros::WallDuration(0.5).sleep();
+  publish(diagnostics, "agent_b", {}, true, g, Eigen::Vector3d(500.0, 0.0, 0.0));
   AgentMap b = loadBundle(kDataDir + "/bundles/depth/agent_b");
   MapKeyframe extra = b.keyframes.front();
   extra.id = 7;
@@ -881,16 +895,33 @@ TEST_F(AutoMerge, AnEdgeAppearsIsRefreshedAndAFailedReMergeKeepsTheLastGoodOne) 
   EXPECT_NE(other.response.message.find("unknown agent(s): agent_x"), std::string::npos) << other.response.message;
 }
 
-// LSD-SLAM: the bag's maps are merged once the bag is in, and again when a pose-graph update
-// moves agent_b's keyframes (by G: the edge follows, S * G^-1).
-TEST(AutoMergeLsd, MergesTheBagAndAgainAfterAGraphUpdate) {
+// LSD-SLAM: the shipped bag's messages streamed in its order (the test publishes them itself, each
+// once the node has taken the one before, so that none can be lost on the way), merged by the
+// node as the maps grow; then a pose-graph update moves agent_b's keyframes (by G: the edge
+// follows, S * G^-1).
+TEST(AutoMergeLsd, MergesTheStreamAndAgainAfterAGraphUpdate) {
   ros::NodeHandle nh;
   const std::string bag = kDataDir + "/bags/lsd_slam_two_agents.bag";
   DiagnosticsWatcher diagnostics(nh);
   Latest<pcr_pro::MapEdge> edge(nh, "merge_node/edge");
-  waitForBag(bag, diagnostics);
+  std::map<std::string, ros::Publisher> publishers;
+  for (const std::string agent : {"agent_a", "agent_b"}) {
+    publishers[agent + "/lsd_slam/keyframes"] = nh.advertise<lsd_slam_viewer::keyframeMsg>(agent + "/lsd_slam/keyframes", 5);
+    publishers[agent + "/lsd_slam/graph"] = nh.advertise<lsd_slam_viewer::keyframeGraphMsg>(agent + "/lsd_slam/graph", 5);
+  }
+  for (const auto& [topic, pub] : publishers) ASSERT_TRUE(waitForSubscriber(pub)) << topic;
+  ros::WallDuration(0.5).sleep();  // the node's side of the connections
+  std::map<std::string, int> received;
+  rosbag::Bag b(bag, rosbag::bagmode::Read);
+  for (const rosbag::MessageInstance& m : rosbag::View(b)) {
+    const std::string topic = m.getTopic().substr(1), agent = topic.substr(0, topic.find('/'));
+    if (const auto kf = m.instantiate<lsd_slam_viewer::keyframeMsg>()) publishers.at(topic).publish(*kf);
+    if (const auto graph = m.instantiate<lsd_slam_viewer::keyframeGraphMsg>()) publishers.at(topic).publish(*graph);
+    ASSERT_TRUE(diagnostics.waitFor("agent " + agent, "messages_received", std::to_string(++received[agent]), 30.0))
+        << topic << ": not received";
+  }
   const auto first = waitUntil<pcr_pro::MapEdge>(edge, [](const auto& e) { return near(e, truth()); }, kMergeWait);
-  ASSERT_TRUE(first) << "no automatic merge of the LSD-SLAM bag: " << diagnostics.value("merge", "last_status");
+  ASSERT_TRUE(first) << "no automatic merge of the LSD-SLAM stream: " << diagnostics.value("merge", "last_status");
   LsdGraph graph;
   {
     rosbag::Bag b(bag, rosbag::bagmode::Read);
@@ -901,8 +932,7 @@ TEST(AutoMergeLsd, MergesTheBagAndAgainAfterAGraphUpdate) {
   const Sim3 g(1.3, Eigen::Quaterniond(Eigen::AngleAxisd(0.5, Eigen::Vector3d(0.2, 1.0, -0.3).normalized())),
                Eigen::Vector3d(0.5, -0.2, 0.4));
   for (auto& [id, pose] : graph.poses) pose = g * pose;
-  ros::Publisher pub = nh.advertise<lsd_slam_viewer::keyframeGraphMsg>("agent_b/lsd_slam/graph", 1, true);
-  pub.publish(lsdGraphToMsg(graph));
+  publishers.at("agent_b/lsd_slam/graph").publish(lsdGraphToMsg(graph));
   const auto moved = waitUntil<pcr_pro::MapEdge>(
       edge, [&](const auto& e) { return e.header.stamp > first->header.stamp && near(e, truth() * g.inverse()); },
       kMergeWait);

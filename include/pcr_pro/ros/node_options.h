@@ -51,7 +51,7 @@ struct NodeOptions {
   InputMode input = InputMode::kPcrPro;
   /// `~queue_size`: subscriber queue length per topic [messages], >= 1.
   int queue_size = 10;
-  /// `~publish_tf`: broadcast target_map -> source_map (static tf) after each merge.
+  /// `~publish_tf`: broadcast target_map -> scaledFrame(source_map) (static tf, rigid) after each merge.
   bool publish_tf = true;
   /// `~merge_config`: merge configuration file (config/merge.yaml format); empty = defaults.
   std::string merge_config;
