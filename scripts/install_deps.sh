@@ -30,7 +30,11 @@ packages=(
   ros-std-msgs ros-sensor-msgs ros-geometry-msgs ros-diagnostic-msgs
   libtf2-ros-dev libdiagnostic-updater-dev libnodelet-dev libnodeletlib-tools pluginlib-dev
   librosbag-dev python3-rosbag librostest-dev python3-rostest python3-roslaunch rosout rosbash
-  python3-rosservice python3-rostopic
+  # the README's command-line tools (rosrun, rosservice call, rostopic echo, rosmsg show, rosnode) and
+  # the Python message classes they load: pcr_pro's messages need std/geometry/sensor_msgs, the
+  # node's diagnostics diagnostic_msgs (test/ros/readme_commands.py runs them all)
+  python3-rosservice python3-rostopic python3-rosmsg python3-rosnode python3-rospy
+  python3-std-msgs python3-geometry-msgs python3-sensor-msgs python3-diagnostic-msgs python3-rosgraph-msgs
 )
 case "$profile" in
   build) ;;

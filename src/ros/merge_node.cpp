@@ -1,8 +1,10 @@
 // The merge node (see merge_node.h).
 #include "pcr_pro/ros/merge_node.h"
 
-#include <cstdlib>
+#include <algorithm>
+#include <future>
 #include <sstream>
+#include <tuple>
 
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/ros/msg_conversion.h"
@@ -54,8 +56,12 @@ MergeNode::MergeNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, Node
   edge_pub_ = pnh_.advertise<pcr_pro::MapEdge>("edge", 1, true);
   // The edge's rigid part and covariance as a standard message, for rviz.
   edge_pose_pub_ = pnh_.advertise<geometry_msgs::PoseWithCovarianceStamped>("edge_pose", 1, true);
+  // Every successful edge so far, for a late subscriber (a pose-graph optimiser).
+  history_pub_ = pnh_.advertise<pcr_pro::EdgeHistory>("edge_history", 1, true);
+  history_pub_.publish(pcr_pro::EdgeHistory());
 
   diagnostics_.setHardwareID("pcr_pro_merge");
+  std::vector<std::string> sources;
   for (const AgentOptions& a : options_.agents) {
     auto agent = std::make_unique<Agent>();
     agent->options = a;
@@ -77,10 +83,13 @@ MergeNode::MergeNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, Node
     }
     diagnostics_.add("agent " + a.name,
                      [this, raw](diagnostic_updater::DiagnosticStatusWrapper& s) { agentDiagnostics(raw, s); });
+    if (a.name != options_.autoMergeTarget()) sources.push_back(a.name);
     agents_.push_back(std::move(agent));
   }
   diagnostics_.add("merge", [this](diagnostic_updater::DiagnosticStatusWrapper& s) { mergeDiagnostics(s); });
-  diagnostics_timer_ = nh_.createTimer(ros::Duration(0.5), [this](const ros::TimerEvent&) { diagnostics_.update(); });
+  diagnostics_timer_ = nh_.createTimer(ros::Duration(options_.diagnostic_period),
+                                       [this](const ros::TimerEvent&) { diagnostics_.force_update(); });
+  schedule_ = std::make_unique<AutoMergeSchedule>(options_.auto_merge, options_.autoMergeTarget(), sources);
 
   worker_ = std::thread([this] { workerLoop(); });
   ros::AdvertiseServiceOptions service_options;
@@ -92,17 +101,32 @@ MergeNode::MergeNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, Node
   merge_service_ = pnh_.advertiseService(service_options);
   service_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &service_queue_);
   service_spinner_->start();
+  // Quick (a copy of the history): on the node's own queue.
+  edges_service_ = pnh_.advertiseService("edges", &MergeNode::onEdgesService, this);
+  if (options_.auto_merge.enabled) {
+    auto_merge_timer_ = nh_.createTimer(ros::Duration(options_.auto_merge.period),
+                                        [this](const ros::TimerEvent&) { checkAutoMerge(); });
+  }
 
   std::ostringstream agents;
   for (const AgentOptions& a : options_.agents) agents << " " << a.name << " (" << a.frame_id << ")";
-  ROS_INFO("pcr_pro merge node: input %s, agents:%s; service %s; per agent at most %d keyframes and %d map points",
+  ROS_INFO("pcr_pro merge node: input %s, agents:%s; service %s; per agent at most %d keyframes and %d map points; "
+           "seed %ld",
            inputModeName(options_.input), agents.str().c_str(), merge_service_.getService().c_str(),
-           options_.limits.max_keyframes, options_.limits.max_cloud_points);
+           options_.limits.max_keyframes, options_.limits.max_cloud_points, static_cast<long>(options_.seed));
+  if (options_.auto_merge.enabled) {
+    ROS_INFO("automatic merging into %s: once both maps have %d keyframes, again after %d new keyframes%s; checked "
+             "every %.3g s",
+             options_.autoMergeTarget().c_str(), options_.auto_merge.min_keyframes, options_.auto_merge.new_keyframes,
+             options_.auto_merge.after_graph_update ? " or when keyframes moved" : "", options_.auto_merge.period);
+  }
 }
 
 MergeNode::~MergeNode() {
-  // The service thread may be waiting for the worker: stop the service first, then the worker.
+  // The service thread may be waiting for the worker: stop the services and timers first, then the worker.
+  auto_merge_timer_.stop();
   merge_service_.shutdown();
+  edges_service_.shutdown();
   if (service_spinner_) service_spinner_->stop();
   {
     std::lock_guard<std::mutex> lock(jobs_mutex_);
@@ -162,6 +186,23 @@ void MergeNode::noteCloudCap(Agent* agent, const std::string& what, const CloudC
   warnThrottled(agent, "cap " + what, s.str());
 }
 
+void MergeNode::noteKeyframe(Agent* agent, bool replaced) {
+  if (replaced) {
+    ++agent->keyframe_moves;
+  } else {
+    ++agent->keyframes_added;
+  }
+}
+
+MapProgress MergeNode::progress(const Agent& agent) const {
+  MapProgress p;
+  p.keyframes = agent.store.keyframeCount();
+  p.has_cloud = options_.input == InputMode::kLsdSlam ? p.keyframes > 0 : agent.store.cloudPoints() > 0;
+  p.added = agent.keyframes_added;
+  p.moved = agent.keyframe_moves;
+  return p;
+}
+
 void MergeNode::onKeyframe(Agent* agent, const pcr_pro::Keyframe::ConstPtr& msg) {
   const std::string topic = agent->options.name + "/keyframes";
   try {
@@ -176,6 +217,7 @@ void MergeNode::onKeyframe(Agent* agent, const pcr_pro::Keyframe::ConstPtr& msg)
     std::vector<long> dropped;
     const bool replaced = agent->store.setKeyframe(data.keyframe, data.camera, &dropped);
     ++agent->received;
+    noteKeyframe(agent, replaced);
     noteDropped(agent, topic, data.keyframe.id, dropped);
     if (first) ROS_INFO("%s: first keyframe (id %ld)", agent->options.name.c_str(), data.keyframe.id);
     ROS_DEBUG("%s: keyframe %ld %s", agent->options.name.c_str(), data.keyframe.id, replaced ? "replaced" : "added");
@@ -235,6 +277,7 @@ void MergeNode::onLsdKeyframe(Agent* agent, const lsd_slam_viewer::keyframeMsg::
     std::vector<long> dropped;
     const bool replaced = agent->store.setLsdKeyframe(kf, &dropped);
     ++agent->received;
+    noteKeyframe(agent, replaced);
     noteDropped(agent, topic, kf.id, dropped);
     if (first) ROS_INFO("%s: first LSD-SLAM keyframe (id %ld)", agent->options.name.c_str(), kf.id);
     ROS_DEBUG("%s: LSD-SLAM keyframe %ld %s", agent->options.name.c_str(), kf.id, replaced ? "replaced" : "added");
@@ -251,137 +294,223 @@ void MergeNode::onLsdGraph(Agent* agent, const lsd_slam_viewer::keyframeGraphMsg
     const int updated = agent->store.updateLsdPoses(graph.poses);
     ++agent->received;
     ++agent->graph_updates;
+    if (updated > 0) ++agent->keyframe_moves;
     ROS_DEBUG("%s: graph update moved %d of %zu keyframes", agent->options.name.c_str(), updated, graph.poses.size());
   } catch (const InputError& e) {
     reject(agent, topic, e.what());
   }
 }
 
-// --- the merge service ------------------------------------------------------------------------
+// --- the services and automatic merging ---------------------------------------------------------
 
 bool MergeNode::onMergeService(pcr_pro::MergeMaps::Request& request, pcr_pro::MergeMaps::Response& response) {
+  // Names from the request are quoted only through printable(): they may hold anything.
+  MergeJob job;
+  job.trigger = "service";
+  job.target = request.target_agent.empty() ? options_.agents[0].name : printable(request.target_agent, 200);
+  job.source = request.source_agent.empty() ? options_.agents[1].name : printable(request.source_agent, 200);
+  // A keyframe id counts only with its flag: an empty request (ids 0) lets the pipeline choose,
+  // and an id without its flag is refused rather than silently ignored.
+  for (const auto& [use, id, field, out] :
+       {std::tuple{request.use_source_keyframe, request.source_keyframe, "source", &job.keyframes.source_keyframe},
+        std::tuple{request.use_target_keyframe, request.target_keyframe, "target", &job.keyframes.target_keyframe}}) {
+    if (use) {
+      *out = static_cast<long>(id);
+    } else if (id != 0) {
+      const std::string f = field;
+      response = answer(Response::INVALID_INPUT, "INVALID_INPUT",
+                        f + "_keyframe is " + std::to_string(id) + " but use_" + f + "_keyframe is false: set use_" + f +
+                            "_keyframe: true to merge from keyframe " + std::to_string(id) + ", or leave " + f +
+                            "_keyframe out to let the pipeline choose");
+      noteOutcome(job, response);
+      return true;
+    }
+  }
   // Whatever goes wrong inside (e.g. std::bad_alloc), the caller gets an answer with a status.
-  std::packaged_task<Response()> task([this, request] {
+  auto task = std::make_shared<std::packaged_task<Response()>>([this, job] {
     try {
-      return merge(request);
+      return merge(job);
     } catch (const std::exception& e) {
       ROS_ERROR("merge failed with an exception: %s", e.what());
       return answer(Response::INVALID_INPUT, "INVALID_INPUT", std::string("the merge failed: ") + e.what());
     }
   });
-  std::future<Response> result = task.get_future();
-  {
-    std::lock_guard<std::mutex> lock(jobs_mutex_);
-    if (stop_) {
-      response = answer(Response::INVALID_INPUT, "INVALID_INPUT", "the node is shutting down");
-      return true;
-    }
-    jobs_.push_back(std::move(task));
+  std::future<Response> result = task->get_future();
+  if (!enqueue([task] { (*task)(); })) {
+    response = answer(Response::INVALID_INPUT, "INVALID_INPUT", "the node is shutting down");
+    return true;
   }
-  jobs_cv_.notify_one();
   response = result.get();
   return true;  // the outcome is in response.status, never a bare false
 }
 
+bool MergeNode::onEdgesService(pcr_pro::GetEdges::Request& request, pcr_pro::GetEdges::Response& response) {
+  std::string unknown;
+  for (const std::string& name : {request.source_agent, request.target_agent}) {
+    if (!name.empty() && !findAgent(name)) unknown += (unknown.empty() ? "" : ", ") + printable(name, 200);
+  }
+  {
+    std::lock_guard<std::mutex> lock(history_mutex_);
+    for (const pcr_pro::MergeRecord& r : history_) {
+      if ((request.source_agent.empty() || r.edge.source_agent == request.source_agent) &&
+          (request.target_agent.empty() || r.edge.target_agent == request.target_agent)) {
+        response.records.push_back(r);
+      }
+    }
+  }
+  response.message = std::to_string(response.records.size()) + " edge(s)";
+  if (!unknown.empty()) response.message += "; unknown agent(s): " + unknown;
+  return true;
+}
+
+void MergeNode::checkAutoMerge() {
+  {
+    std::lock_guard<std::mutex> lock(auto_mutex_);
+    if (auto_pending_) return;  // one automatic merge at a time, and never a backlog of them
+  }
+  std::map<std::string, MapProgress> now;
+  for (const auto& a : agents_) {
+    std::lock_guard<std::mutex> lock(a->mutex);
+    now[a->options.name] = progress(*a);
+  }
+  MergeJob job;
+  job.trigger = "auto";
+  {
+    std::lock_guard<std::mutex> lock(auto_mutex_);
+    const DueMerge due = schedule_->due(now);
+    if (due.source.empty()) return;
+    job.source = due.source;
+    job.target = schedule_->target();
+    auto_pending_ = true;
+    ROS_INFO("automatic merge of %s into %s: %s", job.source.c_str(), job.target.c_str(), due.reason.c_str());
+  }
+  const bool queued = enqueue([this, job] {
+    try {
+      merge(job);
+    } catch (const std::exception& e) {
+      ROS_ERROR("automatic merge failed with an exception: %s", e.what());
+    }
+    std::lock_guard<std::mutex> lock(auto_mutex_);
+    auto_pending_ = false;
+  });
+  if (!queued) {
+    std::lock_guard<std::mutex> lock(auto_mutex_);
+    auto_pending_ = false;
+  }
+}
+
+bool MergeNode::enqueue(std::function<void()> job) {
+  {
+    std::lock_guard<std::mutex> lock(jobs_mutex_);
+    if (stop_) return false;
+    jobs_.push_back(std::move(job));
+  }
+  jobs_cv_.notify_one();
+  return true;
+}
+
 void MergeNode::workerLoop() {
   for (;;) {
-    std::packaged_task<Response()> task;
+    std::function<void()> job;
     {
       std::unique_lock<std::mutex> lock(jobs_mutex_);
       jobs_cv_.wait(lock, [this] { return stop_ || !jobs_.empty(); });
       if (jobs_.empty()) return;  // stop_ and nothing left
-      task = std::move(jobs_.front());
+      job = std::move(jobs_.front());
       jobs_.pop_front();
     }
-    task();
+    job();
   }
 }
 
-Response MergeNode::merge(const pcr_pro::MergeMaps::Request& request) {
-  const auto find = [this](const std::string& name) -> Agent* {
-    for (const auto& a : agents_) {
-      if (a->options.name == name) return a.get();
-    }
-    return nullptr;
-  };
-  // Names from the request are quoted only through printable(): they may hold anything.
-  const std::string target_name =
-      request.target_agent.empty() ? options_.agents[0].name : printable(request.target_agent, 200);
-  const std::string source_name =
-      request.source_agent.empty() ? options_.agents[1].name : printable(request.source_agent, 200);
-  Agent* target = find(target_name);
-  Agent* source = find(source_name);
+// --- one merge (on the worker) --------------------------------------------------------------------
 
+MergeNode::Agent* MergeNode::findAgent(const std::string& name) const {
+  for (const auto& a : agents_) {
+    if (a->options.name == name) return a.get();
+  }
+  return nullptr;
+}
+
+MergeNode::Snapshot MergeNode::takeSnapshot(Agent* agent) const {
+  Snapshot s;
+  s.agent = agent;
+  std::lock_guard<std::mutex> lock(agent->mutex);
+  s.store = agent->store;  // images are shared, never written in place
+  if (agent->rejected > 0) {
+    s.rejections = "; " + std::to_string(agent->rejected) + " message(s) rejected, the last: " + agent->last_rejection;
+  }
+  s.progress = progress(*agent);
+  return s;
+}
+
+std::optional<Response> MergeNode::checkData(const MergeJob& job, const Snapshot& source, const AgentMap& source_map,
+                                             const Snapshot& target, const AgentMap& target_map) const {
+  const bool lsd = options_.input == InputMode::kLsdSlam;
+  for (const auto& [snapshot, map] : {std::pair{&target, &target_map}, std::pair{&source, &source_map}}) {
+    const std::string& n = snapshot->agent->options.name;
+    if (map->keyframes.empty()) {
+      return answer(Response::NO_DATA, "NO_DATA",
+                    n + ": no keyframe received yet (topic " + n + (lsd ? "/lsd_slam/keyframes)" : "/keyframes)") +
+                        snapshot->rejections);
+    }
+    if (map->cloud.cols() == 0) {
+      return answer(Response::NO_DATA, "NO_DATA",
+                    lsd ? n + ": no point of its LSD-SLAM keyframes passes the lsd/ filters" + snapshot->rejections
+                        : n + ": no map cloud received yet (topic " + n + "/cloud)" + snapshot->rejections);
+    }
+  }
+  // A given keyframe id is taken at its word: negative ids and ids the agent lacks are refused.
+  for (const auto& [id, snapshot] : {std::pair{job.keyframes.source_keyframe, &source},
+                                     std::pair{job.keyframes.target_keyframe, &target}}) {
+    Sim3 unused;
+    if (id && !snapshot->store.keyframePose(*id, &unused)) {
+      return answer(Response::UNKNOWN_KEYFRAME, "UNKNOWN_KEYFRAME",
+                    snapshot->agent->options.name + " has no keyframe " + std::to_string(*id) +
+                        " (has: " + joinIds(snapshot->store.keyframeIds()) + ")");
+    }
+  }
+  return std::nullopt;
+}
+
+MergeResult MergeNode::runPipeline(const AgentMap& source, const AgentMap& target, const MergeRequest& request) const {
+  return mergeMaps(source, target, request, options_.merge);
+}
+
+Response MergeNode::merge(const MergeJob& job) {
+  Agent* target = findAgent(job.target);
+  Agent* source = findAgent(job.source);
   Response response;
   if (!target || !source) {
     std::ostringstream known;
     for (const AgentOptions& a : options_.agents) known << " " << a.name;
     response = answer(Response::UNKNOWN_AGENT, "UNKNOWN_AGENT",
-                      "unknown agent '" + (target ? source_name : target_name) + "' (agents:" + known.str() + ")");
+                      "unknown agent '" + (target ? job.source : job.target) + "' (agents:" + known.str() + ")");
   } else if (target == source) {
-    response = answer(Response::UNKNOWN_AGENT, "UNKNOWN_AGENT",
-                      "source and target are the same agent '" + source_name + "'");
+    response = answer(Response::UNKNOWN_AGENT, "UNKNOWN_AGENT", "source and target are the same agent '" + job.source + "'");
   } else {
-    // Snapshot: copies of the stores (images are shared, never written in place).
-    AgentStore source_copy, target_copy;
-    std::string source_rejections, target_rejections;
-    const auto rejections = [](const Agent& a) {
-      if (a.rejected == 0) return std::string();
-      return "; " + std::to_string(a.rejected) + " message(s) rejected, the last: " + a.last_rejection;
-    };
-    {
-      std::lock_guard<std::mutex> lock(source->mutex);
-      source_copy = source->store;
-      source_rejections = rejections(*source);
-    }
-    {
-      std::lock_guard<std::mutex> lock(target->mutex);
-      target_copy = target->store;
-      target_rejections = rejections(*target);
-    }
+    const Snapshot s = takeSnapshot(source), t = takeSnapshot(target);
     CloudCap source_cap, target_cap;
-    const AgentMap source_map = source_copy.toAgentMap(options_.lsd, &source_cap);
-    const AgentMap target_map = target_copy.toAgentMap(options_.lsd, &target_cap);
+    const AgentMap source_map = s.store.toAgentMap(options_.lsd, &source_cap);
+    const AgentMap target_map = t.store.toAgentMap(options_.lsd, &target_cap);
     for (const auto& [agent, cap] : {std::pair{source, &source_cap}, std::pair{target, &target_cap}}) {
       std::lock_guard<std::mutex> lock(agent->mutex);
       noteCloudCap(agent, agent->options.name + ": LSD-SLAM map cloud", *cap);
     }
-    const bool lsd = options_.input == InputMode::kLsdSlam;
-    std::string missing;
-    for (const auto& [agent, map, why] : {std::tuple{target, &target_map, &target_rejections},
-                                          std::tuple{source, &source_map, &source_rejections}}) {
-      if (!missing.empty()) break;
-      const std::string& n = agent->options.name;
-      if (map->keyframes.empty()) {
-        missing = n + ": no keyframe received yet (topic " + n + (lsd ? "/lsd_slam/keyframes)" : "/keyframes)") + *why;
-      } else if (map->cloud.cols() == 0) {
-        missing = lsd ? n + ": no point of its LSD-SLAM keyframes passes the lsd/ filters" + *why
-                      : n + ": no map cloud received yet (topic " + n + "/cloud)" + *why;
-      }
+    const std::optional<Response> refused = checkData(job, s, source_map, t, target_map);
+    if (job.target == options_.autoMergeTarget() && (!refused || job.trigger == "auto")) {
+      std::lock_guard<std::mutex> lock(auto_mutex_);
+      schedule_->attempted(job.source, s.progress, t.progress);
     }
-    MergeRequest merge_request;
-    if (request.source_keyframe >= 0) merge_request.source_keyframe = request.source_keyframe;
-    if (request.target_keyframe >= 0) merge_request.target_keyframe = request.target_keyframe;
-    std::string unknown_keyframe;
-    for (const auto& [id, store, name] : {std::tuple{merge_request.source_keyframe, &source_copy, source_name},
-                                          std::tuple{merge_request.target_keyframe, &target_copy, target_name}}) {
-      Sim3 unused;
-      if (id && !store->keyframePose(*id, &unused)) {
-        unknown_keyframe = name + " has no keyframe " + std::to_string(*id) + " (has: " + joinIds(store->keyframeIds()) + ")";
-      }
-    }
-    if (!missing.empty()) {
-      response = answer(Response::NO_DATA, "NO_DATA", missing);
-    } else if (!unknown_keyframe.empty()) {
-      response = answer(Response::UNKNOWN_KEYFRAME, "UNKNOWN_KEYFRAME", unknown_keyframe);
+    if (refused) {
+      response = *refused;
     } else {
-      ROS_INFO("merging %s (%zu keyframes, %ld points) into %s (%zu keyframes, %ld points)", source_name.c_str(),
-               source_map.keyframes.size(), static_cast<long>(source_map.cloud.cols()), target_name.c_str(),
-               target_map.keyframes.size(), static_cast<long>(target_map.cloud.cols()));
-      std::srand(1);  // OpenCV's FLANN draws from std::rand(): the same data gives the same merge
+      ROS_INFO("merging %s (%zu keyframes, %ld points) into %s (%zu keyframes, %ld points), %s", job.source.c_str(),
+               source_map.keyframes.size(), static_cast<long>(source_map.cloud.cols()), job.target.c_str(),
+               target_map.keyframes.size(), static_cast<long>(target_map.cloud.cols()), job.trigger.c_str());
       MergeResult result;
       try {
-        result = mergeMaps(source_map, target_map, merge_request, options_.merge);
+        result = runPipeline(source_map, target_map, job.keyframes);
       } catch (const std::exception& e) {
         result.report.status = Status::kInvalidInput;
         result.report.message = e.what();
@@ -389,42 +518,84 @@ Response MergeNode::merge(const pcr_pro::MergeMaps::Request& request) {
       const RegistrationReport& r = result.report;
       response = answer(statusCode(r.status), statusName(r.status), r.message);
       if (r.status == Status::kOk && r.transform && r.covariance) {
-        const ros::Time stamp = ros::Time::now();
-        const EdgeNames names{source_name, target_name, source->options.frame_id, target->options.frame_id};
-        response.edge = edgeToMsg(r, names, stamp);
-        edge_pub_.publish(response.edge);
-        geometry_msgs::PoseWithCovarianceStamped edge_pose;
-        edge_pose.header = response.edge.header;
-        edge_pose.pose = response.edge.pose;
-        edge_pose_pub_.publish(edge_pose);
-        const Sim3& s = *r.transform;
-        Cloud fused(3, target_map.cloud.cols() + source_map.cloud.cols());
-        fused << target_map.cloud, s.apply(source_map.cloud);
-        fused_pub_.publish(cloudToMsg(fused, names.target_frame, stamp));
-        // In the source frame, scaled: the rigid tf target -> source puts it onto the target.
-        aligned_pub_.publish(cloudToMsg(source_map.cloud * s.scale(), names.source_frame, stamp));
-        if (options_.publish_tf) {
-          static_tf_.sendTransform(rigidTransformToMsg(s, names.target_frame, names.source_frame, stamp));
-        }
-        ROS_INFO("merged %s into %s: scale %.5g +- %.2g, t [%.4g %.4g %.4g], keyframes %ld -> %ld, fitness %.4g, %d "
-                 "correspondences",
-                 source_name.c_str(), target_name.c_str(), s.scale(), response.edge.scale_stddev, s.translation().x(),
-                 s.translation().y(), s.translation().z(), static_cast<long>(response.edge.source_keyframe),
-                 static_cast<long>(response.edge.target_keyframe), response.edge.fitness_rmse,
-                 response.edge.correspondences);
+        publishMerge(job, s, source_map, t, target_map, r, r.message, &response.edge);
+      } else if (r.status == Status::kOk) {
+        response = answer(Response::INVALID_INPUT, "INVALID_INPUT", "the pipeline said OK without an edge: " + r.message);
       }
     }
   }
+  noteOutcome(job, response);
+  return response;
+}
+
+void MergeNode::publishMerge(const MergeJob& job, const Snapshot& source, const AgentMap& source_map,
+                             const Snapshot& target, const AgentMap& target_map, const RegistrationReport& report,
+                             const std::string& message, pcr_pro::MapEdge* edge) {
+  const ros::Time stamp = ros::Time::now();
+  const EdgeNames names{job.source, job.target, source.agent->options.frame_id, target.agent->options.frame_id};
+  *edge = edgeToMsg(report, names, stamp);
+  edge_pub_.publish(*edge);
+  geometry_msgs::PoseWithCovarianceStamped edge_pose;
+  edge_pose.header = edge->header;
+  edge_pose.pose = edge->pose;
+  edge_pose_pub_.publish(edge_pose);
+  const Sim3& s = *report.transform;
+  Cloud fused(3, target_map.cloud.cols() + source_map.cloud.cols());
+  fused << target_map.cloud, s.apply(source_map.cloud);
+  fused_pub_.publish(cloudToMsg(fused, names.target_frame, stamp));
+  // The source map in target units, in its own scaled frame (scaledFrame()): the rigid tf from the
+  // target map puts it onto the target, and no frame claims coordinates it does not use.
+  const std::string scaled = scaledFrame(names.source_frame);
+  aligned_pub_.publish(cloudToMsg(source_map.cloud * s.scale(), scaled, stamp));
+  if (options_.publish_tf) static_tf_.sendTransform(rigidTransformToMsg(s, names.target_frame, scaled, stamp));
+  recordHistory(job, *edge, message);
+  ROS_INFO("merged %s into %s (%s): scale %.5g +- %.2g, t [%.4g %.4g %.4g], keyframes %ld -> %ld, fitness %.4g, %d "
+           "correspondences",
+           job.source.c_str(), job.target.c_str(), job.trigger.c_str(), s.scale(), edge->scale_stddev,
+           s.translation().x(), s.translation().y(), s.translation().z(), static_cast<long>(edge->source_keyframe),
+           static_cast<long>(edge->target_keyframe), edge->fitness_rmse, edge->correspondences);
+}
+
+void MergeNode::recordHistory(const MergeJob& job, const pcr_pro::MapEdge& edge, const std::string& message) {
+  pcr_pro::MergeRecord record;
+  record.stamp = edge.header.stamp;
+  record.trigger = job.trigger;
+  record.status = Response::OK;
+  record.status_name = "OK";
+  record.message = message;
+  record.edge = edge;
+  pcr_pro::EdgeHistory history;
+  {
+    std::lock_guard<std::mutex> lock(history_mutex_);
+    history_.push_back(record);
+    const auto same_pair = [&](const pcr_pro::MergeRecord& r) {
+      return r.edge.source_agent == edge.source_agent && r.edge.target_agent == edge.target_agent;
+    };
+    if (std::count_if(history_.begin(), history_.end(), same_pair) > options_.max_history_per_pair) {
+      history_.erase(std::find_if(history_.begin(), history_.end(), same_pair));
+      ROS_WARN_THROTTLE(60.0, "merge history: more than max_history_per_pair = %d edges %s -> %s: dropped the oldest",
+                        options_.max_history_per_pair, edge.source_agent.c_str(), edge.target_agent.c_str());
+    }
+    history.records = history_;
+  }
+  history.header.stamp = edge.header.stamp;
+  history_pub_.publish(history);
+}
+
+void MergeNode::noteOutcome(const MergeJob& job, const Response& response) {
   if (response.status != Response::OK) {
-    ROS_INFO("merge %s -> %s: %s: %s", source_name.c_str(), target_name.c_str(), response.status_name.c_str(),
-             response.message.c_str());
+    ROS_INFO("merge %s -> %s (%s): %s: %s%s", job.source.c_str(), job.target.c_str(), job.trigger.c_str(),
+             response.status_name.c_str(), response.message.c_str(),
+             job.trigger == "auto" ? "; the last good edge stays published" : "");
   }
   std::lock_guard<std::mutex> lock(merge_state_mutex_);
   merge_state_.attempted = true;
   merge_state_.status = response.status_name;
   merge_state_.message = response.message;
+  merge_state_.pair = job.source + " -> " + job.target;
+  merge_state_.trigger = job.trigger;
   (response.status == Response::OK ? merge_state_.merges_ok : merge_state_.merges_failed)++;
-  return response;
+  if (job.trigger == "auto") ++merge_state_.merges_auto;
 }
 
 // --- diagnostics ------------------------------------------------------------------------------
@@ -460,8 +631,14 @@ void MergeNode::mergeDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& s)
   s.summary(ok ? diagnostic_msgs::DiagnosticStatus::OK : diagnostic_msgs::DiagnosticStatus::WARN,
             merge_state_.status + ": " + merge_state_.message);
   s.add("last_status", merge_state_.status);
+  s.add("last_pair", merge_state_.pair);
+  s.add("last_trigger", merge_state_.trigger);
   s.add("merges_ok", merge_state_.merges_ok);
   s.add("merges_failed", merge_state_.merges_failed);
+  s.add("merges_auto", merge_state_.merges_auto);
+  s.add("auto_merge", options_.auto_merge.enabled ? "into " + options_.autoMergeTarget() : std::string("off"));
+  std::lock_guard<std::mutex> history_lock(history_mutex_);
+  s.add("history_edges", history_.size());
 }
 
 }  // namespace ros_bridge

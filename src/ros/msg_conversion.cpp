@@ -91,26 +91,62 @@ std::string printable(const std::string& text, std::size_t max_length) {
 
 // --- camera and poses -------------------------------------------------------------------------
 
+namespace {
+
+// Entries of a pinhole matrix (K, 3x3, or P, 3x4, row-major) that must be 0 or 1 for fx, fy, cx, cy
+// to be the whole of it: skew and the bottom row. Skew is refused rather than dropped.
+void checkPinholeLayout(const double* m, int cols, const std::string& field) {
+  const auto at = [&](int r, int c) { return m[r * cols + c]; };
+  if (at(0, 1) != 0.0) fail(field, "skew (element [1]) is " + str(at(0, 1)) + ": only zero skew is supported");
+  if (at(1, 0) != 0.0 || at(2, 0) != 0.0 || at(2, 1) != 0.0 || at(2, 2) != 1.0 || (cols == 4 && at(2, 3) != 0.0)) {
+    fail(field, "not a pinhole matrix: its last row must be [0 0 1" + std::string(cols == 4 ? " 0" : "") + "] and [1][0] 0");
+  }
+}
+
+}  // namespace
+
 PinholeCamera cameraFromMsg(const sensor_msgs::CameraInfo& msg) {
+  // ROS convention (sensor_msgs/CameraInfo): K and D describe the raw camera; P holds the
+  // intrinsics of the rectified image (image_rect). A P of zeros means none was given: the image
+  // is then the raw one, which must have no distortion, and K is its intrinsics.
+  const bool has_p = std::any_of(msg.P.begin(), msg.P.end(), [](double v) { return v != 0.0; });
+  const std::string field = has_p ? "camera_info.P" : "camera_info.K";
+  for (double v : has_p ? std::vector<double>(msg.P.begin(), msg.P.end()) : std::vector<double>(msg.K.begin(), msg.K.end())) {
+    if (!finite(v)) fail(field, "must be finite");
+  }
   PinholeCamera c;
-  c.fx = msg.K[0];
-  c.fy = msg.K[4];
-  c.cx = msg.K[2];
-  c.cy = msg.K[5];
+  c.fx = has_p ? msg.P[0] : msg.K[0];
+  c.fy = has_p ? msg.P[5] : msg.K[4];
+  c.cx = has_p ? msg.P[2] : msg.K[2];
+  c.cy = has_p ? msg.P[6] : msg.K[5];
   c.width = static_cast<int>(msg.width);
   c.height = static_cast<int>(msg.height);
-  if (!(c.fx > 0.0 && c.fy > 0.0 && finite(c.fx) && finite(c.fy))) {
-    fail("camera_info.K", "focal lengths must be finite and > 0, got fx " + str(c.fx) + ", fy " + str(c.fy));
+  if (!(c.fx > 0.0 && c.fy > 0.0)) {
+    fail(field, "focal lengths must be finite and > 0, got fx " + str(c.fx) + ", fy " + str(c.fy));
   }
-  if (!finite(c.cx) || !finite(c.cy)) fail("camera_info.K", "principal point must be finite");
+  if (has_p) {
+    checkPinholeLayout(msg.P.data(), 4, field);
+  } else {
+    checkPinholeLayout(msg.K.data(), 3, field);
+  }
   if (msg.width == 0 || msg.height == 0 || msg.width > kMaxImageSide || msg.height > kMaxImageSide) {
     fail("camera_info", "image size must be > 0 and <= " + str(kMaxImageSide) + " a side, got " + str(msg.width) +
                             "x" + str(msg.height));
   }
-  for (std::size_t i = 0; i < msg.D.size(); ++i) {
-    if (msg.D[i] != 0.0) {
-      fail("camera_info.D", "distortion coefficient " + str(i) + " is " + str(msg.D[i]) +
-                                "; keyframe images must be rectified (D all zero)");
+  if (msg.binning_x > 1 || msg.binning_y > 1) {
+    fail("camera_info.binning", "binning " + str(msg.binning_x) + "x" + str(msg.binning_y) + " is not supported (0 or 1)");
+  }
+  const auto& roi = msg.roi;
+  const bool full_roi = (roi.width == 0 && roi.height == 0 && roi.x_offset == 0 && roi.y_offset == 0) ||
+                        (roi.x_offset == 0 && roi.y_offset == 0 && roi.width == msg.width && roi.height == msg.height);
+  if (!full_roi) fail("camera_info.roi", "a region of interest is not supported (the full image only)");
+  if (!has_p) {
+    for (std::size_t i = 0; i < msg.D.size(); ++i) {
+      if (msg.D[i] != 0.0) {
+        fail("camera_info.D", "distortion coefficient " + str(i) + " is " + str(msg.D[i]) +
+                                  " and P is all zero: send the rectified image (image_rect) with P, or an "
+                                  "undistorted image with D all zero");
+      }
     }
   }
   if (!c.valid()) fail("camera_info", "invalid pinhole camera");

@@ -2,12 +2,14 @@
 #include "pcr_pro/ros/node_options.h"
 
 #include <ros/param.h>
+#include <yaml-cpp/yaml.h>
 
 #include <algorithm>
 #include <cctype>
 #include <set>
 #include <sstream>
 
+#include "pcr_pro/merge/seed.h"
 #include "pcr_pro/registration/config.h"
 
 namespace pcr_pro {
@@ -34,6 +36,25 @@ const char* typeName(XmlRpc::XmlRpcValue::Type t) {
     case XmlRpc::XmlRpcValue::TypeStruct: return "map";
     default: return "other";
   }
+}
+
+// A list given as a string: `_agents:="[r1, r2]"` on a command line reaches the parameter server
+// as the string "[r1, r2]" (roscpp types private arguments as int, double, bool or string only).
+// It is read as YAML; anything but a list of scalars is an error naming the key.
+std::vector<std::string> stringList(const std::string& key, const std::string& text) {
+  YAML::Node node;
+  try {
+    node = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    fail(key, "must be a list of strings such as [agent_a, agent_b], got '" + text + "' (" + e.msg + ")");
+  }
+  if (!node.IsSequence()) fail(key, "must be a list of strings such as [agent_a, agent_b], got '" + text + "'");
+  std::vector<std::string> out;
+  for (std::size_t i = 0; i < node.size(); ++i) {
+    if (!node[i].IsScalar()) fail(key, "element " + std::to_string(i) + " must be a string, got '" + text + "'");
+    out.push_back(node[i].as<std::string>());
+  }
+  return out;
 }
 
 // Typed optional reads: absent keeps *value; present with the wrong type is an error.
@@ -72,9 +93,20 @@ class ParamReader {
       fail(key, std::string("must be a number, got ") + typeName(v.getType()));
     }
   }
+  // An XML-RPC int is 32 bits: wider options take it as it is.
+  void read(const std::string& key, std::int64_t* value) const {
+    if (!pnh_.hasParam(key)) return;
+    int v = 0;
+    read(key, &v);
+    *value = v;
+  }
   void read(const std::string& key, std::vector<std::string>* value) const {
     XmlRpc::XmlRpcValue v;
     if (!raw(key, &v)) return;
+    if (v.getType() == XmlRpc::XmlRpcValue::TypeString) {
+      *value = stringList(key, static_cast<std::string>(v));
+      return;
+    }
     if (v.getType() != XmlRpc::XmlRpcValue::TypeArray) fail(key, std::string("must be a list of strings, got ") + typeName(v.getType()));
     value->clear();
     for (int i = 0; i < v.size(); ++i) {
@@ -93,6 +125,8 @@ class ParamReader {
 
 const char* inputModeName(InputMode mode) { return mode == InputMode::kLsdSlam ? "lsd_slam" : "pcr_pro"; }
 
+std::string scaledFrame(const std::string& frame_id) { return frame_id + "_scaled"; }
+
 void validate(const NodeOptions& o) {
   if (o.agents.size() < 2) fail("agents", "needs at least two agents, got " + std::to_string(o.agents.size()));
   std::set<std::string> names, frames;
@@ -106,11 +140,30 @@ void validate(const NodeOptions& o) {
     if (a.frame_id.find(' ') != std::string::npos) fail(a.name + "/frame_id", "must not contain spaces");
     if (!frames.insert(a.frame_id).second) fail(a.name + "/frame_id", "frame '" + a.frame_id + "' is used by two agents");
   }
+  for (const AgentOptions& a : o.agents) {
+    for (const AgentOptions& b : o.agents) {
+      if (a.frame_id == scaledFrame(b.frame_id)) {
+        fail(a.name + "/frame_id", "'" + a.frame_id + "' is the scaled frame of agent " + b.name +
+                                       "'s map (~aligned_cloud, tf): choose another");
+      }
+    }
+  }
   if (o.queue_size < 1) fail("queue_size", "must be >= 1, got " + std::to_string(o.queue_size));
+  if (o.seed < 0 || o.seed > 2147483647) fail("seed", "must be in [0, 2147483647], got " + std::to_string(o.seed));
+  if (!(o.diagnostic_period >= 0.1 && o.diagnostic_period <= 60.0)) {
+    fail("diagnostic_period", "must be in [0.1, 60] s, got " + std::to_string(o.diagnostic_period));
+  }
+  if (o.max_history_per_pair < 1) {
+    fail("max_history_per_pair", "must be >= 1, got " + std::to_string(o.max_history_per_pair));
+  }
+  if (!o.auto_merge.target.empty() && !names.count(o.auto_merge.target)) {
+    fail("auto_merge/target", "'" + o.auto_merge.target + "' is not one of ~agents");
+  }
   try {
     validate(o.lsd);
     validate(o.limits);
     validate(o.merge);
+    validate(o.auto_merge);
   } catch (const InputError& e) {
     throw InputError(std::string("~") + e.what());
   }
@@ -149,12 +202,23 @@ NodeOptions loadNodeOptions(const ros::NodeHandle& pnh) {
   p.read("lsd/sparsify_factor", &o.lsd.sparsify_factor);
   p.read("max_keyframes_per_agent", &o.limits.max_keyframes);
   p.read("max_cloud_points_per_agent", &o.limits.max_cloud_points);
+  p.read("seed", &o.seed);
+  p.read("diagnostic_period", &o.diagnostic_period);
+  p.read("max_history_per_pair", &o.max_history_per_pair);
+  p.read("auto_merge/enabled", &o.auto_merge.enabled);
+  p.read("auto_merge/target", &o.auto_merge.target);
+  p.read("auto_merge/min_keyframes", &o.auto_merge.min_keyframes);
+  p.read("auto_merge/new_keyframes", &o.auto_merge.new_keyframes);
+  p.read("auto_merge/after_graph_update", &o.auto_merge.after_graph_update);
+  p.read("auto_merge/period", &o.auto_merge.period);
 
   // Unknown keys under ~ are typos: refuse them rather than silently using a default.
   std::set<std::string> known{"agents", "input", "queue_size", "publish_tf", "merge_config", "icp_config",
                               "lsd/scaled_depth_var_th", "lsd/abs_depth_var_th", "lsd/min_near_support",
                               "lsd/sparsify_factor", "max_keyframes_per_agent", "max_cloud_points_per_agent",
-                              "diagnostic_period"};  // read by diagnostic_updater
+                              "seed", "diagnostic_period", "max_history_per_pair", "auto_merge/enabled",
+                              "auto_merge/target", "auto_merge/min_keyframes", "auto_merge/new_keyframes",
+                              "auto_merge/after_graph_update", "auto_merge/period"};
   for (const AgentOptions& a : o.agents) known.insert(a.name + "/frame_id");
   std::vector<std::string> all;
   if (ros::param::getParamNames(all)) {
@@ -181,6 +245,7 @@ NodeOptions loadNodeOptions(const ros::NodeHandle& pnh) {
     }
   }
   validate(o);
+  setSeed(&o.merge, static_cast<std::uint64_t>(o.seed));
   return o;
 }
 

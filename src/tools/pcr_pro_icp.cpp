@@ -6,15 +6,18 @@
 #include "pcr_pro/registration/cloud_registration.h"
 #include "pcr_pro/registration/config.h"
 #include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/merge/seed.h"
 #include "tool_common.h"
 
 namespace {
 
 const char* kUsage =
     "usage: pcr_pro_icp --source A.pcd --target B.pcd [--config FILE] [--initial \"16 numbers row-major\"]\n"
-    "                   [--estimate-scale] [--output DIR]\n"
+    "                   [--estimate-scale] [--output DIR] [--seed N]\n"
     "Registers the source cloud onto the target cloud (PCD, or CSV/text x,y,z[,...]) and prints the\n"
-    "result YAML (S_target_source, covariance, information). Exit: 0 OK, 1 not merged, 2 bad input.\n";
+    "result YAML (S_target_source, covariance, information). --seed N (0 ... 2147483647, default 1)\n"
+    "seeds the configuration's random filter steps (the ICP sampling and the covariance calibration\n"
+    "use fixed seeds of their own). Exit: 0 OK, 1 not merged, 2 bad input.\n";
 
 pcr_pro::Sim3 parseInitial(const std::string& text) {
   std::istringstream in(text);
@@ -39,7 +42,7 @@ int run(int argc, char** argv) {
       return 0;
     }
   }
-  const tools::Arguments args(argc, argv, {"--source", "--target", "--config", "--initial", "--output"},
+  const tools::Arguments args(argc, argv, {"--source", "--target", "--config", "--initial", "--output", "--seed"},
                               {"--estimate-scale"});
   const std::string source_path = args.required("--source");
   const std::string target_path = args.required("--target");
@@ -51,6 +54,7 @@ int run(int argc, char** argv) {
     options = merge_options.registration;
     limits = merge_options.limits;
   }
+  setSeed(&options.filters, tools::seedOption(args));
   if (args.flag("--estimate-scale")) options.icp.estimate_scale = true;
   std::optional<Sim3> initial;
   if (const auto init = args.value("--initial")) initial = parseInitial(*init);

@@ -4,16 +4,19 @@
 
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/merge/seed.h"
 #include "tool_common.h"
 
 namespace {
 
 const char* kUsage =
     "usage: pcr_pro_merge --source DIR --target DIR [--config FILE] [--output DIR]\n"
-    "                     [--source-keyframe ID] [--target-keyframe ID]\n"
+    "                     [--source-keyframe ID] [--target-keyframe ID] [--seed N]\n"
     "Merges the source agent's map bundle into the target agent's (PCR-Pro: SIFT/FLANN keyframe\n"
     "matching, OpenGV relative pose, Kalman-filter scale, ICP with scale, closed-form covariance)\n"
-    "and prints the result YAML (S_target_source). Exit: 0 merged, 1 not merged, 2 bad input.\n";
+    "and prints the result YAML (S_target_source). --seed N (0 ... 2147483647, default 1) seeds every\n"
+    "random stage: equal inputs and seeds give equal results, bit for bit.\n"
+    "Exit: 0 merged, 1 not merged, 2 bad input.\n";
 
 long parseId(const std::string& option, const std::string& text) {
   try {
@@ -34,11 +37,12 @@ int run(int argc, char** argv) {
     }
   }
   const tools::Arguments args(
-      argc, argv, {"--source", "--target", "--config", "--output", "--source-keyframe", "--target-keyframe"}, {});
+      argc, argv, {"--source", "--target", "--config", "--output", "--source-keyframe", "--target-keyframe", "--seed"}, {});
   const std::string source_dir = args.required("--source");
   const std::string target_dir = args.required("--target");
   MergeOptions options;
   if (const auto config = args.value("--config")) options = loadMergeConfig(*config);
+  setSeed(&options, tools::seedOption(args));
   MergeRequest request;
   if (const auto id = args.value("--source-keyframe")) request.source_keyframe = parseId("--source-keyframe", *id);
   if (const auto id = args.value("--target-keyframe")) request.target_keyframe = parseId("--target-keyframe", *id);
@@ -72,7 +76,5 @@ int run(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  // OpenCV's FLANN index draws its random trees from std::rand(): seed it for repeatable runs.
-  std::srand(1);
   return pcr_pro::tools::runTool("pcr_pro_merge", argc, argv, run);
 }

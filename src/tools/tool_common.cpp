@@ -1,5 +1,6 @@
 #include "tool_common.h"
 
+#include <algorithm>
 #include <filesystem>
 #include <new>
 #include <fstream>
@@ -35,6 +36,17 @@ std::string Arguments::required(const std::string& key) const {
   const auto v = value(key);
   if (!v) throw UsageError("missing required option " + key + " (see --help)");
   return *v;
+}
+
+std::uint64_t seedOption(const Arguments& args) {
+  const auto text = args.value("--seed");
+  if (!text) return kDefaultSeed;
+  const bool digits = !text->empty() && text->size() <= 10 &&
+                      std::all_of(text->begin(), text->end(), [](char c) { return c >= '0' && c <= '9'; });
+  if (!digits || std::stoull(*text) > kMaxSeed) {
+    throw UsageError("--seed: must be an integer in [0, " + std::to_string(kMaxSeed) + "], got '" + *text + "'");
+  }
+  return std::stoull(*text);
 }
 
 void writeOutputs(const std::string& dir, const std::string& yaml, const Cloud& fused) {

@@ -1,6 +1,7 @@
 // Helpers shared by the offline command-line tools (argument parsing, output writing).
 #pragma once
 
+#include <cstdint>
 #include <map>
 #include <optional>
 #include <set>
@@ -31,6 +32,13 @@ class Arguments {
   std::map<std::string, std::string> values_;
   std::set<std::string> flags_;
 };
+
+/// Largest seed the tools and the node accept (the node's `~seed` is an XML-RPC int).
+constexpr std::uint64_t kMaxSeed = 2147483647;
+
+/// @return the value of `--seed` (0 ... kMaxSeed), or kDefaultSeed when absent.
+/// @throw UsageError naming the option when it is not such an integer
+std::uint64_t seedOption(const Arguments& args);
 
 /// Writes DIR/result.yaml and DIR/fused.pcd (creating DIR). @throw InputError on failure.
 void writeOutputs(const std::string& dir, const std::string& yaml, const Cloud& fused);

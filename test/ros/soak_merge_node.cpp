@@ -216,7 +216,8 @@ void stream(AgentStream* a, bool lsd, double keyframe_rate, double cloud_rate, i
       if (bad) {
         if (bad_class == 0) m.image.encoding = "yuv422";                                     // unsupported encoding
         if (bad_class == 1) m.camera_info.width /= 2;                                        // size vs CameraInfo
-        if (bad_class == 2) std::fill(m.camera_info.K.begin(), m.camera_info.K.end(), 0.0);  // zero intrinsics
+        if (bad_class == 2) std::fill(m.camera_info.P.begin(), m.camera_info.P.end(), 0.0);  // zero intrinsics (P, then K)
+        if (bad_class == 2) std::fill(m.camera_info.K.begin(), m.camera_info.K.end(), 0.0);
       }
       kf_pub.publish(m);
     }
@@ -260,11 +261,10 @@ void callMerges(int caller, AgentStream* a, AgentStream* b, const std::atomic<bo
     pcr_pro::MergeMaps srv;
     const int kind = static_cast<int>(i % 4);
     if (kind == 1) {
+      srv.request.use_source_keyframe = srv.request.use_target_keyframe = true;
       srv.request.source_keyframe = b->latest_id;
       srv.request.target_keyframe = a->latest_id;
-    } else {
-      srv.request.source_keyframe = srv.request.target_keyframe = -1;
-    }
+    }  // otherwise an empty request: the pipeline chooses the pair
     if (kind == 2) srv.request.source_agent = "agent_z";
     const auto t0 = Clock::now();
     const bool answered = ros::service::call(service, srv);

@@ -53,7 +53,6 @@ struct Errors {
 
 Errors mergeErrors(const std::map<std::string, AgentStore>& stores, MergeResult* result) {
   const BundleTruth truth = loadBundleTruth(kDataDir + "/bundles/depth/truth.yaml");
-  std::srand(1);
   *result = mergeMaps(stores.at("agent_b").toAgentMap(LsdFilterOptions()), stores.at("agent_a").toAgentMap(LsdFilterOptions()),
                       MergeRequest(), MergeOptions());
   if (result->report.status != Status::kOk) return {1e9, 1e9, 1e9};

@@ -14,11 +14,16 @@
 #include <atomic>
 #include <cstdio>
 #include <cstring>
+#include <functional>
 #include <map>
 #include <mutex>
+#include <optional>
+#include <set>
 #include <sys/wait.h>
 #include <thread>
 
+#include "pcr_pro/EdgeHistory.h"
+#include "pcr_pro/GetEdges.h"
 #include "pcr_pro/MergeMaps.h"
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/agent_store.h"
@@ -162,20 +167,38 @@ void waitForBag(const std::string& file, DiagnosticsWatcher& diagnostics) {
   for (const auto& [agent, n] : counts) {
     ASSERT_TRUE(diagnostics.waitFor("agent " + agent, "messages_received", std::to_string(n), 90.0))
         << agent << ": the node did not receive the bag's " << n << " messages (has "
-        << diagnostics.value("agent " + agent, "messages_received") << ")";
+        << diagnostics.value("agent " + agent, "messages_received") << ", rejected "
+        << diagnostics.value("agent " + agent, "messages_rejected") << ": "
+        << diagnostics.value("agent " + agent, "last_rejection") << "; keyframes "
+        << diagnostics.value("agent " + agent, "keyframe_ids") << ")";
   }
 }
 
-Response callMerge(const std::string& source = "", const std::string& target = "", long source_kf = -1,
-                   long target_kf = -1) {
+// A ~merge request; keyframe ids that are given are taken at their word (use_*_keyframe).
+pcr_pro::MergeMaps::Request mergeRequest(const std::string& source = "", const std::string& target = "",
+                                         std::optional<long> source_kf = std::nullopt,
+                                         std::optional<long> target_kf = std::nullopt) {
+  pcr_pro::MergeMaps::Request r;
+  r.source_agent = source;
+  r.target_agent = target;
+  r.use_source_keyframe = source_kf.has_value();
+  r.source_keyframe = source_kf.value_or(0);
+  r.use_target_keyframe = target_kf.has_value();
+  r.target_keyframe = target_kf.value_or(0);
+  return r;
+}
+
+Response callMerge(const pcr_pro::MergeMaps::Request& request) {
   pcr_pro::MergeMaps srv;
-  srv.request.source_agent = source;
-  srv.request.target_agent = target;
-  srv.request.source_keyframe = source_kf;
-  srv.request.target_keyframe = target_kf;
+  srv.request = request;
   EXPECT_TRUE(ros::service::waitForService(kService, ros::Duration(30.0)));
   EXPECT_TRUE(ros::service::call(kService, srv));
   return srv.response;
+}
+
+Response callMerge(const std::string& source = "", const std::string& target = "",
+                   std::optional<long> source_kf = std::nullopt, std::optional<long> target_kf = std::nullopt) {
+  return callMerge(mergeRequest(source, target, source_kf, target_kf));
 }
 
 // Waits until `pub` has a subscriber (the node), so that nothing published is lost.
@@ -244,13 +267,17 @@ void checkMergeOutputs(const Response& r, const Sim3& expected, std::size_t targ
   EXPECT_EQ(static_cast<std::size_t>(f->width) * f->height, target_points + source_points);
   const auto a = aligned.waitNewerThan(r.edge.header.stamp);
   ASSERT_TRUE(a) << "no aligned cloud";
-  EXPECT_EQ(a->header.frame_id, "agent_b/map");
+  // Frames that do not lie: the aligned cloud is in target units, so not in agent_b/map but in its
+  // scaled frame, which the rigid tf joins to agent_a/map; agent_b/map has no tf (it would need the scale).
+  EXPECT_EQ(a->header.frame_id, "agent_b/map_scaled");
   EXPECT_EQ(static_cast<std::size_t>(a->width) * a->height, source_points);
 
   tf2_ros::Buffer buffer;
   tf2_ros::TransformListener listener(buffer);
   geometry_msgs::TransformStamped t;
-  ASSERT_NO_THROW(t = buffer.lookupTransform("agent_a/map", "agent_b/map", ros::Time(0), ros::Duration(10.0)));
+  ASSERT_NO_THROW(t = buffer.lookupTransform("agent_a/map", "agent_b/map_scaled", ros::Time(0), ros::Duration(10.0)));
+  EXPECT_FALSE(buffer.canTransform("agent_a/map", "agent_b/map", ros::Time(0)))
+      << "a rigid tf to agent_b/map would be off by the scale " << r.edge.scale;
   const auto& tr = t.transform.translation;
   EXPECT_NEAR(tr.x, r.edge.pose.pose.position.x, 1e-9);
   EXPECT_NEAR(tr.y, r.edge.pose.pose.position.y, 1e-9);
@@ -418,7 +445,7 @@ TEST_F(Live, InvalidMessagesAreRejectedAndTheNodeKeepsServing) {
   cloud.data.resize(cloud.data.size() - 5);  // width * height * point_step != data.size()
   clouds_["agent_a"].publish(cloud);
   pcr_pro::Keyframe kf = keyframeToMsg(map.keyframes[0], map.camera, "agent_a/map", ros::Time::now());
-  kf.camera_info.K[0] = 0.0;  // zero intrinsics
+  kf.camera_info.P[0] = 0.0;  // zero intrinsics (a rectified image's are in P)
   keyframes_["agent_a"].publish(kf);
   kf = keyframeToMsg(map.keyframes[0], map.camera, "agent_b/map", ros::Time::now());  // wrong frame
   keyframes_["agent_a"].publish(kf);
@@ -453,9 +480,94 @@ TEST_F(Live, MergesAndAResentKeyframeIdReplacesTheOldOne) {
   ASSERT_EQ(given.status, Response::OK) << given.message;
   EXPECT_EQ(given.edge.source_keyframe, 3);
   EXPECT_EQ(given.edge.target_keyframe, 2);
-  const Response unknown = callMerge("agent_b", "agent_a", 42, -1);
+  const Response unknown = callMerge("agent_b", "agent_a", 42);
   EXPECT_EQ(unknown.status, Response::UNKNOWN_KEYFRAME);
   EXPECT_NE(unknown.message.find("42"), std::string::npos);
+}
+
+// --- merge_node_requests.test (issue 14): the request, camera conventions, repeatability ---------
+
+class Requests : public Live {};
+
+// An empty request ("{}") lets the pipeline choose the pair; a given id is taken at its word: 0 is
+// an id like any other (agent_b has 3 and 5), negative ids are unknown, and an id without its
+// use_*_keyframe flag is refused instead of silently ignored.
+TEST_F(Requests, AnEmptyRequestIsAutomaticAndGivenIdsAreTakenAtTheirWord) {
+  DiagnosticsWatcher diagnostics(nh_);
+  publishAgent("agent_a");
+  publishAgent("agent_b");
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", "1, 2, 4"));
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "keyframe_ids", "3, 5"));
+  const Response automatic = callMerge(pcr_pro::MergeMaps::Request());
+  ASSERT_EQ(automatic.status, Response::OK) << automatic.message;
+  expectNear(edgeFromMsg(automatic.edge).target_source, truth(), "empty request");
+  const Response zero = callMerge("", "", 0);
+  EXPECT_EQ(zero.status, Response::UNKNOWN_KEYFRAME) << zero.message;
+  EXPECT_NE(zero.message.find("agent_b has no keyframe 0 (has: 3, 5)"), std::string::npos) << zero.message;
+  const Response negative = callMerge("", "", std::nullopt, -1);
+  EXPECT_EQ(negative.status, Response::UNKNOWN_KEYFRAME) << negative.message;
+  EXPECT_NE(negative.message.find("agent_a has no keyframe -1"), std::string::npos) << negative.message;
+  pcr_pro::MergeMaps::Request without_flag;
+  without_flag.source_keyframe = 5;
+  const Response refused = callMerge(without_flag);
+  EXPECT_EQ(refused.status, Response::INVALID_INPUT);
+  EXPECT_NE(refused.message.find("use_source_keyframe"), std::string::npos) << refused.message;
+}
+
+// ROS camera conventions: keyframes as a driver + image_proc publish them (image_rect with the
+// raw camera's K and D, the rectified intrinsics in P) are taken, with P's intrinsics. They are
+// moved by G, so the merge must give S * G^-1: it can only if the node used them (K's intrinsics
+// are not those of the agent's earlier keyframes: with K they would be refused).
+TEST_F(Requests, RectifiedKeyframesTakeTheirIntrinsicsFromP) {
+  DiagnosticsWatcher diagnostics(nh_);
+  publishAgent("agent_a");
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", "1, 2, 4"));
+  const long rejected = number(diagnostics, "agent agent_b", "messages_rejected");
+  const long received = number(diagnostics, "agent agent_b", "messages_received");
+  const Sim3 g(1.7, Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d(0.3, -1.0, 0.2).normalized())),
+               Eigen::Vector3d(0.2, 0.9, -0.5));
+  AgentMap map = loadBundle(kDataDir + "/bundles/depth/agent_b");
+  clouds_["agent_b"].publish(cloudToMsg(g.apply(map.cloud), map.frame_id, ros::Time::now()));
+  for (MapKeyframe& kf : map.keyframes) {
+    kf.pose = g * kf.pose;
+    pcr_pro::Keyframe msg = keyframeToMsg(kf, map.camera, map.frame_id, ros::Time::now());
+    const PinholeCamera& c = map.camera;
+    msg.camera_info.K = {c.fx * 1.06, 0.0, c.cx + 7.0, 0.0, c.fy * 1.04, c.cy - 5.0, 0.0, 0.0, 1.0};
+    msg.camera_info.D = {-0.25, 0.06, 0.001, -0.0004, 0.0};
+    keyframes_["agent_b"].publish(msg);
+  }
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_received", std::to_string(received + 3)))
+      << diagnostics.value("agent agent_b", "messages_received") << ", rejected "
+      << diagnostics.value("agent agent_b", "last_rejection");
+  EXPECT_EQ(number(diagnostics, "agent agent_b", "messages_rejected"), rejected)
+      << diagnostics.value("agent agent_b", "last_rejection");
+  const Response r = callMerge();
+  ASSERT_EQ(r.status, Response::OK) << r.message;
+  expectNear(edgeFromMsg(r.edge).target_source, truth() * g.inverse(), "image_rect + camera_info (P)");
+}
+
+// ~seed: the same data merged twice gives the same edge, bit for bit.
+TEST_F(Requests, IdenticalCallsGiveIdenticalEdges) {
+  DiagnosticsWatcher diagnostics(nh_);
+  publishAgent("agent_a");
+  publishAgent("agent_b");
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", "1, 2, 4"));
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "keyframe_ids", "3, 5"));
+  ros::WallDuration(0.5).sleep();  // the last cloud
+  const Response a = callMerge(), b = callMerge();
+  ASSERT_EQ(a.status, Response::OK) << a.message;
+  ASSERT_EQ(b.status, Response::OK) << b.message;
+  EXPECT_EQ(a.message, b.message);
+  EXPECT_EQ(a.edge.pose.pose.position.x, b.edge.pose.pose.position.x);
+  EXPECT_EQ(a.edge.pose.pose.position.y, b.edge.pose.pose.position.y);
+  EXPECT_EQ(a.edge.pose.pose.position.z, b.edge.pose.pose.position.z);
+  EXPECT_EQ(a.edge.pose.pose.orientation.x, b.edge.pose.pose.orientation.x);
+  EXPECT_EQ(a.edge.pose.pose.orientation.w, b.edge.pose.pose.orientation.w);
+  EXPECT_EQ(a.edge.scale, b.edge.scale);
+  EXPECT_EQ(a.edge.scale_stddev, b.edge.scale_stddev);
+  EXPECT_EQ(a.edge.pose.covariance, b.edge.pose.covariance);
+  EXPECT_EQ(a.edge.information, b.edge.information);
+  EXPECT_EQ(a.edge.correspondences, b.edge.correspondences);
 }
 
 TEST_F(Live, EveryBadMessageClassIsRejectedWithAThrottledWarningAndEarlierDataIsKept) {
@@ -495,7 +607,8 @@ TEST_F(Live, EveryBadMessageClassIsRejectedWithAThrottledWarningAndEarlierDataIs
   std::vector<pcr_pro::Keyframe> bad_keyframes(7, kf);
   bad_keyframes[0].image.encoding = "yuv422";                              // unsupported encoding
   bad_keyframes[1].camera_info.width = 320;                                // image size vs CameraInfo
-  std::fill(bad_keyframes[2].camera_info.K.begin(), bad_keyframes[2].camera_info.K.end(), 0.0);  // zero intrinsics
+  std::fill(bad_keyframes[2].camera_info.P.begin(), bad_keyframes[2].camera_info.P.end(), 0.0);  // zero intrinsics
+  std::fill(bad_keyframes[2].camera_info.K.begin(), bad_keyframes[2].camera_info.K.end(), 0.0);
   bad_keyframes[3].scale = 0.0;                                            // degenerate pose
   bad_keyframes[4].camera_info.K[0] += 10.0;                               // not the agent's camera
   bad_keyframes[4].camera_info.P[0] += 10.0;
@@ -505,6 +618,7 @@ TEST_F(Live, EveryBadMessageClassIsRejectedWithAThrottledWarningAndEarlierDataIs
   bad_keyframes[6].pose.position.x = NAN;                                  // NaN pose
   for (const auto& k : bad_keyframes) keyframes_["agent_a"].publish(k);
   pcr_pro::Keyframe distorted = keyframeToMsg(map.keyframes[0], map.camera, "agent_b/map", ros::Time::now());
+  std::fill(distorted.camera_info.P.begin(), distorted.camera_info.P.end(), 0.0);  // K alone: must be undistorted
   distorted.camera_info.D[0] = 0.2;
   keyframes_["agent_b"].publish(distorted);
 
@@ -560,26 +674,24 @@ TEST_F(Live, ConcurrentAndRepeatedMergeCallsAreAllAnsweredWhileDataArrives) {
     }
   });
   struct Call {
-    Call(std::string s, std::string t, long skf, long tkf, std::uint8_t e)
+    Call(std::string s, std::string t, std::optional<long> skf, std::optional<long> tkf, std::uint8_t e)
         : source(std::move(s)), target(std::move(t)), source_kf(skf), target_kf(tkf), expected(e) {}
     std::string source, target;
-    long source_kf, target_kf;
+    std::optional<long> source_kf, target_kf;
     std::uint8_t expected;
     bool answered = false;
     pcr_pro::MergeMaps srv;
   };
-  std::vector<Call> calls = {{"", "", -1, -1, Response::OK},
+  const std::optional<long> none;
+  std::vector<Call> calls = {{"", "", none, none, Response::OK},
                              {"agent_b", "agent_a", 3, 2, Response::OK},
-                             {"agent_q", "", -1, -1, Response::UNKNOWN_AGENT},
-                             {"agent_b", "agent_a", 77, -1, Response::UNKNOWN_KEYFRAME},
-                             {"", "", -1, -1, Response::OK}};
+                             {"agent_q", "", none, none, Response::UNKNOWN_AGENT},
+                             {"agent_b", "agent_a", 77, none, Response::UNKNOWN_KEYFRAME},
+                             {"", "", none, none, Response::OK}};
   std::vector<std::thread> callers;
   for (Call& c : calls) {
     callers.emplace_back([&c] {
-      c.srv.request.source_agent = c.source;
-      c.srv.request.target_agent = c.target;
-      c.srv.request.source_keyframe = c.source_kf;
-      c.srv.request.target_keyframe = c.target_kf;
+      c.srv.request = mergeRequest(c.source, c.target, c.source_kf, c.target_kf);
       c.answered = ros::service::call(kService, c.srv);
     });
   }
@@ -589,7 +701,7 @@ TEST_F(Live, ConcurrentAndRepeatedMergeCallsAreAllAnsweredWhileDataArrives) {
   EXPECT_GT(resent.load(), 0);
   int ok = 0;
   for (const Call& c : calls) {
-    const std::string what = "call (" + c.source + ", " + c.target + ", " + std::to_string(c.source_kf) + ")";
+    const std::string what = "call (" + c.source + ", " + c.target + ", " + std::to_string(c.source_kf.value_or(-1)) + ")";
     ASSERT_TRUE(c.answered) << what << " not answered";
     EXPECT_EQ(c.srv.response.status, c.expected) << what << ": " << c.srv.response.status_name << ": "
                                                  << c.srv.response.message;
@@ -621,16 +733,217 @@ TEST_F(Live, ShippedNodeConfigStatesTheStructDefaults) {
   EXPECT_EQ(shipped.lsd.sparsify_factor, d.lsd.sparsify_factor);
   EXPECT_EQ(shipped.limits.max_keyframes, d.limits.max_keyframes);
   EXPECT_EQ(shipped.limits.max_cloud_points, d.limits.max_cloud_points);
+  EXPECT_EQ(shipped.seed, d.seed);
+  EXPECT_EQ(shipped.diagnostic_period, d.diagnostic_period);
+  EXPECT_EQ(shipped.max_history_per_pair, d.max_history_per_pair);
+  EXPECT_EQ(shipped.auto_merge.enabled, d.auto_merge.enabled);
+  EXPECT_EQ(shipped.auto_merge.target, d.auto_merge.target);
+  EXPECT_EQ(shipped.auto_merge.min_keyframes, d.auto_merge.min_keyframes);
+  EXPECT_EQ(shipped.auto_merge.new_keyframes, d.auto_merge.new_keyframes);
+  EXPECT_EQ(shipped.auto_merge.after_graph_update, d.auto_merge.after_graph_update);
+  EXPECT_EQ(shipped.auto_merge.period, d.auto_merge.period);
   // ... and the file states every limit explicitly (not just by leaving it out).
   int value = 0;
   EXPECT_TRUE(ros::param::get("/merge_node/max_keyframes_per_agent", value));
   EXPECT_TRUE(ros::param::get("/merge_node/max_cloud_points_per_agent", value));
+  for (const char* key : {"seed", "diagnostic_period", "max_history_per_pair", "auto_merge/enabled", "auto_merge/target",
+                          "auto_merge/min_keyframes", "auto_merge/new_keyframes", "auto_merge/after_graph_update",
+                          "auto_merge/period"}) {
+    EXPECT_TRUE(ros::param::has(std::string("/merge_node/") + key)) << key;
+  }
+}
+
+// --- auto_merge.test, auto_merge_lsd.test (issue 14): automatic merging and the merge history --
+
+// Waits until the latest message of `latest` satisfies `ok`; @return it (nullptr on timeout).
+template <typename M>
+typename M::ConstPtr waitUntil(Latest<M>& latest, const std::function<bool(const M&)>& ok, double seconds) {
+  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(seconds);
+  while (ros::ok() && ros::WallTime::now() < end) {
+    const auto m = latest.get();
+    if (m && ok(*m)) return m;
+    ros::WallDuration(0.05).sleep();
+  }
+  return nullptr;
+}
+
+bool near(const pcr_pro::MapEdge& edge, const Sim3& expected) {
+  const Sim3 s = edgeFromMsg(edge).target_source;
+  return rotationDistance(s.rotation(), expected.rotation()) * 180.0 / M_PI < kRotationTolDeg &&
+         std::abs(s.scale() / expected.scale() - 1.0) < kScaleTol &&
+         (s.translation() - expected.translation()).norm() < kTranslationTol;
+}
+
+// Merges take a few seconds each on a busy machine; a first merge waits for the period too.
+constexpr double kMergeWait = 60.0;
+
+class AutoMerge : public Live {
+ protected:
+  /**
+   * Publishes the given keyframes of an agent's bundle (and first its cloud), all moved by `moved`,
+   * one message after the other: each once the node has taken the one before (its
+   * messages_received), so that they arrive in this order (two topics are two connections).
+   */
+  void publish(DiagnosticsWatcher& diagnostics, const std::string& agent, const std::set<long>& ids, bool cloud,
+               const Sim3& moved = Sim3(), const Eigen::Vector3d& cloud_offset = Eigen::Vector3d::Zero()) {
+    AgentMap map = loadBundle(kDataDir + "/bundles/depth/" + agent);
+    long received = number(diagnostics, "agent " + agent, "messages_received");
+    const auto taken = [&] {
+      ASSERT_TRUE(diagnostics.waitFor("agent " + agent, "messages_received", std::to_string(++received)))
+          << agent << ": a message was not taken";
+    };
+    if (cloud) {
+      const Cloud c = moved.apply(map.cloud).colwise() + cloud_offset;
+      clouds_[agent].publish(cloudToMsg(c, map.frame_id, ros::Time::now()));
+      taken();
+    }
+    for (MapKeyframe& kf : map.keyframes) {
+      if (!ids.count(kf.id)) continue;
+      kf.pose = moved * kf.pose;
+      keyframes_[agent].publish(keyframeToMsg(kf, map.camera, map.frame_id, ros::Time::now()));
+      taken();
+    }
+  }
+};
+
+TEST_F(AutoMerge, AnEdgeAppearsIsRefreshedAndAFailedReMergeKeepsTheLastGoodOne) {
+  DiagnosticsWatcher diagnostics(nh_);
+  Latest<pcr_pro::MapEdge> edge(nh_, "merge_node/edge");
+  ASSERT_TRUE(diagnostics.waitFor("merge", "auto_merge", "into agent_a"));
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_received", "0"));
+  // 1. agent_b has one keyframe, fewer than auto_merge/min_keyframes (2): nothing happens.
+  publish(diagnostics, "agent_a", {1, 2}, true);
+  publish(diagnostics, "agent_b", {3}, true);
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", "1, 2"));
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "keyframe_ids", "3"));
+  ros::WallDuration(1.5).sleep();  // five checks (auto_merge/period 0.3 s)
+  EXPECT_EQ(diagnostics.value("merge", "merges_auto"), "0");
+  EXPECT_FALSE(edge.get()) << "merged before agent_b had min_keyframes";
+  // 2. agent_b's second keyframe: the first automatic merge.
+  publish(diagnostics, "agent_b", {5}, false);
+  const auto first = waitUntil<pcr_pro::MapEdge>(edge, [](const auto&) { return true; }, kMergeWait);
+  ASSERT_TRUE(first) << "no automatic merge: " << diagnostics.value("merge", "last_status");
+  expectNear(edgeFromMsg(*first).target_source, truth(), "first automatic merge");
+  // 3. One new keyframe of agent_a (auto_merge/new_keyframes 1): merged again.
+  publish(diagnostics, "agent_a", {4}, false);
+  const auto second = waitUntil<pcr_pro::MapEdge>(
+      edge, [&](const auto& e) { return e.header.stamp > first->header.stamp; }, kMergeWait);
+  ASSERT_TRUE(second) << "no merge after agent_a grew";
+  expectNear(edgeFromMsg(*second).target_source, truth(), "after agent_a grew");
+  // 4. agent_b's keyframes re-sent, moved by G (as after a loop closure): merged again, to S * G^-1.
+  const Sim3 g(0.8, Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d(1.0, 0.4, -0.2).normalized())),
+               Eigen::Vector3d(0.4, -0.3, 0.6));
+  publish(diagnostics, "agent_b", {3, 5}, true, g);
+  const Sim3 moved_truth = truth() * g.inverse();
+  const auto third = waitUntil<pcr_pro::MapEdge>(
+      edge, [&](const auto& e) { return e.header.stamp > second->header.stamp && near(e, moved_truth); }, kMergeWait);
+  ASSERT_TRUE(third) << "no merge after agent_b's keyframes moved";
+  // 5. A re-merge that fails (agent_b's cloud far from where its keyframes see it, and a new
+  // keyframe to trigger the merge) leaves the last good edge published.
+  // (first let every merge the re-sent messages triggered finish, and the diagnostics catch up)
+  long failed = -1, ok = -1;
+  for (int same = 0; same < 4 && ros::ok();) {  // unchanged over 4 x 0.8 s (> diagnostic_period + a check)
+    ros::WallDuration(0.8).sleep();
+    const long f = number(diagnostics, "merge", "merges_failed"), o = number(diagnostics, "merge", "merges_ok");
+    same = (f == failed && o == ok) ? same + 1 : 0;
+    failed = f;
+    ok = o;
+  }
+  publish(diagnostics, "agent_b", {}, true, g, Eigen::Vector3d(500.0, 0.0, 0.0));
+  AgentMap b = loadBundle(kDataDir + "/bundles/depth/agent_b");
+  MapKeyframe extra = b.keyframes.front();
+  extra.id = 7;
+  extra.pose = g * extra.pose;
+  keyframes_["agent_b"].publish(keyframeToMsg(extra, b.camera, b.frame_id, ros::Time::now()));
+  ASSERT_TRUE(diagnostics.waitFor("merge", "merges_failed", std::to_string(failed + 1), kMergeWait))
+      << "the re-merge did not fail: " << diagnostics.value("merge", "last_status");
+  EXPECT_EQ(number(diagnostics, "merge", "merges_ok"), ok);
+  ros::WallDuration(1.0).sleep();
+  const auto kept = edge.get();
+  ASSERT_TRUE(kept);
+  EXPECT_EQ(kept->header.stamp, third->header.stamp) << "the last good edge was replaced";
+
+  // The history: every successful edge, for a late subscriber and through ~edges.
+  Latest<pcr_pro::EdgeHistory> late(nh_, "merge_node/edge_history");
+  const auto history = waitUntil<pcr_pro::EdgeHistory>(late, [](const auto&) { return true; }, 10.0);
+  ASSERT_TRUE(history);
+  ASSERT_EQ(static_cast<long>(history->records.size()), ok);
+  ASSERT_GE(history->records.size(), 3u);
+  for (std::size_t i = 0; i < history->records.size(); ++i) {
+    const pcr_pro::MergeRecord& r = history->records[i];
+    EXPECT_EQ(r.trigger, "auto");
+    EXPECT_EQ(r.status, Response::OK);
+    EXPECT_EQ(r.status_name, "OK");
+    EXPECT_EQ(r.stamp, r.edge.header.stamp);
+    EXPECT_EQ(r.edge.source_agent, "agent_b");
+    EXPECT_EQ(r.edge.target_agent, "agent_a");
+    if (i > 0) EXPECT_GT(r.stamp, history->records[i - 1].stamp);
+  }
+  EXPECT_EQ(history->records.back().edge.header.stamp, third->header.stamp);
+  EXPECT_TRUE(near(history->records.front().edge, truth()));
+  EXPECT_TRUE(near(history->records.back().edge, moved_truth));
+  pcr_pro::GetEdges all;
+  ASSERT_TRUE(ros::service::call("merge_node/edges", all));
+  ASSERT_EQ(all.response.records.size(), history->records.size());
+  EXPECT_EQ(all.response.records.back().edge.scale, history->records.back().edge.scale);
+  pcr_pro::GetEdges other;
+  other.request.source_agent = "agent_a";
+  ASSERT_TRUE(ros::service::call("merge_node/edges", other));
+  EXPECT_TRUE(other.response.records.empty());
+  other.request.source_agent = "agent_x";
+  ASSERT_TRUE(ros::service::call("merge_node/edges", other));
+  EXPECT_NE(other.response.message.find("unknown agent(s): agent_x"), std::string::npos) << other.response.message;
+}
+
+// LSD-SLAM: the shipped bag's messages streamed in its order (the test publishes them itself, each
+// once the node has taken the one before, so that none can be lost on the way), merged by the
+// node as the maps grow; then a pose-graph update moves agent_b's keyframes (by G: the edge
+// follows, S * G^-1).
+TEST(AutoMergeLsd, MergesTheStreamAndAgainAfterAGraphUpdate) {
+  ros::NodeHandle nh;
+  const std::string bag = kDataDir + "/bags/lsd_slam_two_agents.bag";
+  DiagnosticsWatcher diagnostics(nh);
+  Latest<pcr_pro::MapEdge> edge(nh, "merge_node/edge");
+  std::map<std::string, ros::Publisher> publishers;
+  for (const std::string agent : {"agent_a", "agent_b"}) {
+    publishers[agent + "/lsd_slam/keyframes"] = nh.advertise<lsd_slam_viewer::keyframeMsg>(agent + "/lsd_slam/keyframes", 5);
+    publishers[agent + "/lsd_slam/graph"] = nh.advertise<lsd_slam_viewer::keyframeGraphMsg>(agent + "/lsd_slam/graph", 5);
+  }
+  for (const auto& [topic, pub] : publishers) ASSERT_TRUE(waitForSubscriber(pub)) << topic;
+  ros::WallDuration(0.5).sleep();  // the node's side of the connections
+  std::map<std::string, int> received;
+  rosbag::Bag b(bag, rosbag::bagmode::Read);
+  for (const rosbag::MessageInstance& m : rosbag::View(b)) {
+    const std::string topic = m.getTopic().substr(1), agent = topic.substr(0, topic.find('/'));
+    if (const auto kf = m.instantiate<lsd_slam_viewer::keyframeMsg>()) publishers.at(topic).publish(*kf);
+    if (const auto graph = m.instantiate<lsd_slam_viewer::keyframeGraphMsg>()) publishers.at(topic).publish(*graph);
+    ASSERT_TRUE(diagnostics.waitFor("agent " + agent, "messages_received", std::to_string(++received[agent]), 30.0))
+        << topic << ": not received";
+  }
+  const auto first = waitUntil<pcr_pro::MapEdge>(edge, [](const auto& e) { return near(e, truth()); }, kMergeWait);
+  ASSERT_TRUE(first) << "no automatic merge of the LSD-SLAM stream: " << diagnostics.value("merge", "last_status");
+  LsdGraph graph;
+  {
+    rosbag::Bag b(bag, rosbag::bagmode::Read);
+    for (const rosbag::MessageInstance& m : rosbag::View(b, rosbag::TopicQuery("/agent_b/lsd_slam/graph"))) {
+      graph = lsdGraphFromMsg(*m.instantiate<lsd_slam_viewer::keyframeGraphMsg>());
+    }
+  }
+  const Sim3 g(1.3, Eigen::Quaterniond(Eigen::AngleAxisd(0.5, Eigen::Vector3d(0.2, 1.0, -0.3).normalized())),
+               Eigen::Vector3d(0.5, -0.2, 0.4));
+  for (auto& [id, pose] : graph.poses) pose = g * pose;
+  publishers.at("agent_b/lsd_slam/graph").publish(lsdGraphToMsg(graph));
+  const auto moved = waitUntil<pcr_pro::MapEdge>(
+      edge, [&](const auto& e) { return e.header.stamp > first->header.stamp && near(e, truth() * g.inverse()); },
+      kMergeWait);
+  ASSERT_TRUE(moved) << "the graph update did not lead to a new edge: " << diagnostics.value("merge", "last_status");
+  EXPECT_EQ(diagnostics.value("merge", "last_trigger"), "auto");
 }
 
 TEST(BadConfig, TheNodeRefusesToStartAndNamesTheKey) {
-  const auto run = [](const std::string& name, const std::string& key_in_message) {
+  const auto run = [](const std::string& name, const std::string& key_in_message, const std::string& args = "") {
     std::string out;
-    const std::string cmd = std::string(PCR_PRO_MERGE_NODE_BIN) + " __name:=" + name + " 2>&1";
+    const std::string cmd = std::string(PCR_PRO_MERGE_NODE_BIN) + " __name:=" + name + " " + args + " 2>&1";
     FILE* pipe = popen(cmd.c_str(), "r");
     ASSERT_NE(pipe, nullptr);
     char buffer[512];
@@ -654,6 +967,19 @@ TEST(BadConfig, TheNodeRefusesToStartAndNamesTheKey) {
   run("bad_keyframe_cap", "~max_keyframes_per_agent");
   ros::param::set("/bad_cloud_cap/max_cloud_points_per_agent", std::string("many"));
   run("bad_cloud_cap", "~max_cloud_points_per_agent");
+  // Every documented range is enforced (diagnostic_updater itself would take any period).
+  for (const double period : {0.0, -1.0, 0.001}) {
+    ros::param::set("/bad_period/diagnostic_period", period);
+    run("bad_period", "~diagnostic_period: must be in [0.1, 60]");
+  }
+  ros::param::set("/bad_seed/seed", -3);
+  run("bad_seed", "~seed");
+  ros::param::set("/bad_auto/auto_merge/target", std::string("agent_z"));
+  run("bad_auto", "~auto_merge/target");
+  // Lists on the command line: roscpp stores _agents:="[r1, r2]" as a string, read as a YAML list.
+  // The node got r1 and r2 when it complains about r2's frame (and not about ~agents).
+  run("cli_list", "~r2/frame_id", "'_agents:=[r1, r2]' _r2/frame_id:=/r2/map");
+  run("cli_not_a_list", "~agents: must be a list of strings", "'_agents:=r1'");
 }
 
 }  // namespace

@@ -232,13 +232,14 @@ TEST(Conversions, BadKeyframesAreRejected) {
   const AgentMap agent = realAgent();
   const pcr_pro::Keyframe good = keyframeToMsg(agent.keyframes.front(), agent.camera, "", ros::Time(), false);
   auto bad = good;
-  bad.camera_info.K[0] = 0.0;  // zero intrinsics
+  bad.camera_info.P[0] = 0.0;  // zero intrinsics
   EXPECT_THROW(keyframeFromMsg(bad), InputError);
   bad = good;
   bad.camera_info.width = 320;  // image size vs camera_info
   EXPECT_THROW(keyframeFromMsg(bad), InputError);
   bad = good;
-  bad.camera_info.D[0] = 0.1;  // not rectified
+  std::fill(bad.camera_info.P.begin(), bad.camera_info.P.end(), 0.0);
+  bad.camera_info.D[0] = 0.1;  // no P (rectified intrinsics) and a distorted image
   EXPECT_THROW(keyframeFromMsg(bad), InputError);
   bad = good;
   bad.image.encoding = "yuv422";
@@ -259,12 +260,47 @@ TEST(Conversions, BadKeyframesAreRejected) {
   EXPECT_THROW(keyframeFromMsg(bad), InputError);  // depth size != image size
   try {
     bad = good;
+    std::fill(bad.camera_info.P.begin(), bad.camera_info.P.end(), 0.0);
     bad.camera_info.K[4] = -1.0;
     keyframeFromMsg(bad);
     FAIL();
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("camera_info.K"), std::string::npos) << e.what();
   }
+}
+
+// ROS camera conventions (issue 14): a rectified image (image_rect) takes its intrinsics from P,
+// whatever K (the raw camera's) and D (its distortion) say; without P (all zero) K is used and D
+// must be zero.
+TEST(Conversions, RectifiedImagesTakeTheirIntrinsicsFromP) {
+  const AgentMap agent = realAgent();
+  const PinholeCamera& truth = agent.camera;
+  pcr_pro::Keyframe msg = keyframeToMsg(agent.keyframes.front(), truth, "", ros::Time(), false);
+  // As a driver + image_proc publish it: K, D of the raw (distorted) camera, P of the rectified one.
+  msg.camera_info.K = {truth.fx * 1.07, 0.0, truth.cx + 9.0, 0.0, truth.fy * 1.05, truth.cy - 6.0, 0.0, 0.0, 1.0};
+  msg.camera_info.D = {-0.28, 0.07, 0.001, -0.0005, 0.0};
+  msg.camera_info.R = {0.999, 0.01, 0.0, -0.01, 0.999, 0.0, 0.0, 0.0, 1.0};
+  msg.camera_info.P[3] = -0.12 * truth.fx;  // a stereo pair's right camera: Tx = -fx * baseline
+  const PinholeCamera c = keyframeFromMsg(msg).camera;
+  EXPECT_EQ(c.fx, truth.fx);
+  EXPECT_EQ(c.fy, truth.fy);
+  EXPECT_EQ(c.cx, truth.cx);
+  EXPECT_EQ(c.cy, truth.cy);
+  // Without P, K is the image's intrinsics (and D must be zero).
+  std::fill(msg.camera_info.P.begin(), msg.camera_info.P.end(), 0.0);
+  msg.camera_info.D.assign(5, 0.0);
+  const PinholeCamera k = keyframeFromMsg(msg).camera;
+  EXPECT_DOUBLE_EQ(k.fx, truth.fx * 1.07);
+  EXPECT_DOUBLE_EQ(k.cy, truth.cy - 6.0);
+  msg.camera_info.D.clear();  // an empty D is no distortion too
+  EXPECT_NO_THROW(keyframeFromMsg(msg));
+  // Our own messages carry P = [K | 0] and round-trip.
+  const sensor_msgs::CameraInfo ours = cameraToMsg(truth);
+  EXPECT_EQ(ours.P[0], truth.fx);
+  EXPECT_EQ(ours.P[6], truth.cy);
+  const PinholeCamera back = cameraFromMsg(ours);
+  EXPECT_EQ(back.fx, truth.fx);
+  EXPECT_EQ(back.cx, truth.cx);
 }
 
 TEST(Conversions, CloudRoundTripAndValidation) {

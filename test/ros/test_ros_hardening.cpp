@@ -149,14 +149,24 @@ TEST(BadKeyframes, ImagesCamerasAndPosesAreRefusedNamingTheField) {
       },
       {"depth", "!= image size"}, "depth size vs image size");
   // camera_info
-  rejected([](auto& m) { m.camera_info.K[0] = 0.0; }, {"camera_info.K", "focal"}, "zero fx");
-  rejected([](auto& m) { m.camera_info.K[4] = 0.0; }, {"camera_info.K", "focal"}, "zero fy");
-  rejected([](auto& m) { std::fill(m.camera_info.K.begin(), m.camera_info.K.end(), 0.0); }, {"camera_info.K"},
-           "all-zero K");
-  rejected([](auto& m) { m.camera_info.K[0] = NAN; }, {"camera_info.K"}, "NaN fx");
-  rejected([](auto& m) { m.camera_info.K[2] = INFINITY; }, {"camera_info.K", "principal point"}, "infinite cx");
+  // (the intrinsics of a rectified image are in P; K and D describe the raw camera)
+  rejected([](auto& m) { m.camera_info.P[0] = 0.0; }, {"camera_info.P", "focal"}, "zero fx");
+  rejected([](auto& m) { m.camera_info.P[5] = 0.0; }, {"camera_info.P", "focal"}, "zero fy");
+  rejected([](auto& m) { m.camera_info.P[0] = NAN; }, {"camera_info.P", "finite"}, "NaN fx");
+  rejected([](auto& m) { m.camera_info.P[2] = INFINITY; }, {"camera_info.P", "finite"}, "infinite cx");
+  rejected([](auto& m) { m.camera_info.P[1] = 0.5; }, {"camera_info.P", "skew"}, "skew in P");
+  rejected([](auto& m) { m.camera_info.P[10] = 2.0; }, {"camera_info.P", "last row"}, "P[10] != 1");
+  const auto without_p = [](pcr_pro::Keyframe& m) { std::fill(m.camera_info.P.begin(), m.camera_info.P.end(), 0.0); };
+  rejected([&](auto& m) { without_p(m); std::fill(m.camera_info.K.begin(), m.camera_info.K.end(), 0.0); },
+           {"camera_info.K", "focal"}, "all-zero K and P");
+  rejected([&](auto& m) { without_p(m); m.camera_info.K[0] = NAN; }, {"camera_info.K", "finite"}, "NaN fx in K");
+  rejected([&](auto& m) { without_p(m); m.camera_info.K[1] = 0.5; }, {"camera_info.K", "skew"}, "skew in K");
+  rejected([&](auto& m) { without_p(m); m.camera_info.K[8] = 0.0; }, {"camera_info.K", "last row"}, "K[8] != 1");
+  rejected([&](auto& m) { without_p(m); m.camera_info.D = {0.0, 0.1}; }, {"camera_info.D", "P is all zero"},
+           "distortion without P");
   rejected([](auto& m) { m.camera_info.width = 0; }, {"camera_info", "size"}, "zero camera size");
-  rejected([](auto& m) { m.camera_info.D = {0.0, 0.1}; }, {"camera_info.D", "rectified"}, "distortion");
+  rejected([](auto& m) { m.camera_info.binning_x = 2; }, {"camera_info.binning"}, "binning");
+  rejected([](auto& m) { m.camera_info.roi.width = 320; m.camera_info.roi.height = 240; }, {"camera_info.roi"}, "roi");
   // poses
   rejected([](auto& m) { m.pose.orientation = geometry_msgs::Quaternion(); }, {"pose.orientation"}, "zero quaternion");
   rejected([](auto& m) { m.pose.orientation.w = NAN; }, {"pose.orientation"}, "NaN quaternion");

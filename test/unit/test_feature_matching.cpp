@@ -5,12 +5,16 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <cstdlib>
+#include <opencv2/features2d.hpp>
+#include <opencv2/flann.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <set>
 #include <string>
 
 #include "common/data_dir.h"
+#include "pcr_pro/frontend/descriptor_index.h"
 #include "pcr_pro/frontend/feature_matching.h"
 
 namespace pcr_pro {
@@ -349,6 +353,128 @@ TEST(FeatureMatching, DefaultsAndValidation) {
   o = d;
   o.min_matches = -1;
   expectKey(o, "matching.min_matches");
+}
+
+// --- the seeded descriptor index (issue 14: repeatable merges) --------------------------------
+
+// Descriptors of real frames: the index is built over frames 1-3, queried with frames 4 and 5.
+struct RealDescriptors {
+  cv::Mat train, query;
+};
+RealDescriptors realDescriptors() {
+  const FeatureMatchingOptions o;
+  std::vector<cv::Mat> train, query;
+  for (const char* name : {"1.png", "2.png", "3.png"}) train.push_back(extractFeatures(loadGray(name), o).descriptors);
+  for (const char* name : {"4.png", "5.png"}) query.push_back(extractFeatures(loadGray(name), o).descriptors);
+  RealDescriptors d;
+  cv::vconcat(train, d.train);
+  cv::vconcat(query, d.query);
+  return d;
+}
+
+// Fraction of queries whose reported nearest neighbour is the exact one.
+double recall(const std::vector<int>& found, const std::vector<std::vector<cv::DMatch>>& exact) {
+  int hits = 0;
+  for (std::size_t q = 0; q < found.size(); ++q) hits += found[q] == exact[q][0].trainIdx;
+  return static_cast<double>(hits) / static_cast<double>(found.size());
+}
+
+TEST(DescriptorIndex, FindsTheExactNeighbourAsOftenAsFlannAtTheSameBudget) {
+  const RealDescriptors d = realDescriptors();
+  ASSERT_GT(d.query.rows, 500);
+  cv::BFMatcher exact_matcher(cv::NORM_L2);
+  std::vector<std::vector<cv::DMatch>> exact;
+  exact_matcher.knnMatch(d.query, d.train, exact, 1);
+  const int trees = FeatureMatchingOptions().flann_trees;
+  for (const int checks : {32, FeatureMatchingOptions().flann_checks}) {
+    const DescriptorIndex index(d.train, trees, kDefaultSeed);
+    DescriptorIndex::Searcher searcher(index);
+    std::vector<int> ours;
+    std::vector<DescriptorNeighbor> nn;
+    for (int q = 0; q < d.query.rows; ++q) {
+      searcher.knn(d.query.ptr<float>(q), 2, checks, &nn);
+      ASSERT_EQ(nn.size(), 2u);
+      EXPECT_LE(nn[0].squared_distance, nn[1].squared_distance);
+      // Distances are true squared distances of the rows they name.
+      EXPECT_NEAR(nn[0].squared_distance, cv::norm(d.query.row(q), d.train.row(nn[0].index), cv::NORM_L2SQR),
+                  1e-3 * nn[0].squared_distance + 1e-3);
+      ours.push_back(nn[0].index);
+    }
+    // FLANN's KDTreeIndex is the same method: at the same trees and budget it must do as well,
+    // up to the sampling noise of two recall estimates over n queries (3 standard errors).
+    cv::FlannBasedMatcher flann(cv::makePtr<cv::flann::KDTreeIndexParams>(trees),
+                                cv::makePtr<cv::flann::SearchParams>(checks));
+    std::vector<std::vector<cv::DMatch>> theirs;
+    flann.knnMatch(d.query, d.train, theirs, 1);
+    std::vector<int> flann_found;
+    for (const auto& m : theirs) flann_found.push_back(m.empty() ? -1 : m[0].trainIdx);
+    const double r_ours = recall(ours, exact), r_flann = recall(flann_found, exact);
+    const double p = 0.5 * (r_ours + r_flann);
+    const double band = 3.0 * std::sqrt(2.0 * p * (1.0 - p) / d.query.rows);
+    RecordProperty("recall_" + std::to_string(checks), std::to_string(r_ours) + " (FLANN " + std::to_string(r_flann) + ")");
+    EXPECT_GE(r_ours, r_flann - band) << checks << " checks";
+  }
+}
+
+TEST(DescriptorIndex, TheSeedAloneDecidesTheAnswers) {
+  const RealDescriptors d = realDescriptors();
+  // A small budget, so that the answers depend on the trees.
+  constexpr int kChecks = 8;
+  const auto answers = [&](std::uint64_t seed) {
+    const DescriptorIndex index(d.train, 4, seed);
+    DescriptorIndex::Searcher searcher(index);
+    std::vector<DescriptorNeighbor> nn;
+    std::vector<std::pair<int, float>> out;
+    for (int q = 0; q < d.query.rows; ++q) {
+      searcher.knn(d.query.ptr<float>(q), 2, kChecks, &nn);
+      for (const auto& n : nn) out.emplace_back(n.index, n.squared_distance);
+    }
+    return out;
+  };
+  std::srand(7);
+  const auto first = answers(kDefaultSeed);
+  std::srand(12345);  // the process-global generator has no say
+  for (int i = 0; i < 100; ++i) static_cast<void>(std::rand());
+  EXPECT_EQ(answers(kDefaultSeed), first);
+  EXPECT_NE(answers(kDefaultSeed + 1), first) << "the seed does not reach the trees";
+}
+
+TEST(DescriptorIndex, DegenerateInput) {
+  EXPECT_THROW(DescriptorIndex(cv::Mat(), 4, 1), InputError);
+  EXPECT_THROW(DescriptorIndex(cv::Mat(3, 4, CV_8UC1, cv::Scalar(1)), 4, 1), InputError);
+  EXPECT_THROW(DescriptorIndex(cv::Mat(3, 4, CV_32FC1, cv::Scalar(1)), 0, 1), InputError);
+  // Identical rows: every split falls back to halving, and the answer is still one of them.
+  const cv::Mat same(50, 8, CV_32FC1, cv::Scalar(0.5f));
+  const DescriptorIndex index(same, 2, 3);
+  DescriptorIndex::Searcher searcher(index);
+  std::vector<DescriptorNeighbor> nn;
+  const std::vector<float> q(8, 0.5f);
+  searcher.knn(q.data(), 4, 1, &nn);
+  ASSERT_EQ(nn.size(), 4u);
+  for (const auto& n : nn) EXPECT_EQ(n.squared_distance, 0.0f);
+  // k beyond the size gives every row.
+  const DescriptorIndex one(cv::Mat(1, 8, CV_32FC1, cv::Scalar(2.0f)), 4, 1);
+  DescriptorIndex::Searcher one_searcher(one);
+  one_searcher.knn(q.data(), 2, 64, &nn);
+  ASSERT_EQ(nn.size(), 1u);
+  EXPECT_FLOAT_EQ(nn[0].squared_distance, 8 * 1.5f * 1.5f);
+}
+
+TEST(FeatureMatching, MatchesAndVotesAreRepeatableWhateverElseDrawsRandomNumbers) {
+  const FeatureMatchingOptions o;
+  const KeyframeFeatures f2 = extractFeatures(loadGray("2.png"), o), f3 = extractFeatures(loadGray("3.png"), o);
+  const KeyframeFeatures f4 = extractFeatures(loadGray("4.png"), o);
+  std::srand(1);
+  const FeatureMatches first = matchFeatures(f2, f3, o);
+  const auto votes = keyframePairVotes({&f3}, {&f2, &f4}, o);
+  std::srand(99);
+  for (int i = 0; i < 1000; ++i) static_cast<void>(std::rand());
+  static_cast<void>(matchFeatures(f4, f3, o));  // another pair in between
+  const FeatureMatches again = matchFeatures(f2, f3, o);
+  EXPECT_EQ(again.index_a, first.index_a);
+  EXPECT_EQ(again.index_b, first.index_b);
+  EXPECT_EQ(again.distances, first.distances);
+  EXPECT_EQ(keyframePairVotes({&f3}, {&f2, &f4}, o), votes);
 }
 
 }  // namespace

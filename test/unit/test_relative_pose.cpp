@@ -222,6 +222,31 @@ TEST(RelativePose, AllAlgorithmsWithoutRefinement) {
   checkAccuracy(o, seven_eight_point, 13);
 }
 
+// options.seed alone decides RANSAC's samples: equal seeds give equal results bit for bit; a
+// single RANSAC iteration without refinement returns the model of the one sample it drew, so
+// two seeds give two different models (the sample of 8 of 150 correspondences would have to be
+// the same).
+TEST(RelativePose, TheSeedDecidesTheSamples) {
+  std::mt19937 rng(21);
+  const Scene s = makeScene(&rng, 25.0 * kDeg, 150, 0.5, 0.3);
+  RelativePoseOptions o;
+  const RelativePoseResult a = estimateRelativePose(s.bearings_target, s.bearings_source, 500.0, o);
+  ASSERT_EQ(a.status, Status::kOk) << a.message;
+  const RelativePoseResult b = estimateRelativePose(s.bearings_target, s.bearings_source, 500.0, o);
+  EXPECT_EQ(a.inliers, b.inliers);
+  EXPECT_TRUE(a.rotation == b.rotation);
+  EXPECT_TRUE(a.translation_direction == b.translation_direction);
+  o.max_iterations = 1;
+  o.nonlinear_refinement = false;
+  o.min_inliers = 5;
+  o.min_inlier_ratio = 0.0;
+  const RelativePoseResult one = estimateRelativePose(s.bearings_target, s.bearings_source, 500.0, o);
+  o.seed = kDefaultSeed + 1;
+  const RelativePoseResult other = estimateRelativePose(s.bearings_target, s.bearings_source, 500.0, o);
+  EXPECT_FALSE(one.rotation == other.rotation && one.translation_direction == other.translation_direction)
+      << "the seed does not reach RANSAC";
+}
+
 // The convention P_target = R * P_source + lambda * t_hat, checked without noise: every
 // triangulated inlier must satisfy it with lambda > 0 and positive depth in both cameras, and the
 // swapped call must give the inverse motion.

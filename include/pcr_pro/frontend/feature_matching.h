@@ -1,7 +1,8 @@
 /**
  * @file feature_matching.h
  * @brief Keyframe matching (PCR-Pro §Keyframe Matching): SIFT features on one keyframe image,
- * FLANN k-NN matching between two keyframes, Lowe's ratio test and a symmetric (mutual best)
+ * approximate k-NN matching between two keyframes (a seeded randomised k-d forest, FLANN's
+ * method: descriptor_index.h), Lowe's ratio test and a symmetric (mutual best)
  * check.
  *
  * Extraction and matching are separate so that a pipeline can extract the features of every
@@ -11,6 +12,7 @@
 
 #include <Eigen/Core>
 #include <cstddef>
+#include <cstdint>
 #include <opencv2/core.hpp>
 #include <vector>
 
@@ -38,9 +40,9 @@ struct FeatureMatchingOptions {
   double edge_threshold = 10.0;
   /// SIFT: standard deviation of the Gaussian applied to the input image at octave 0 [px], > 0.
   double sigma = 1.6;
-  /// FLANN: number of randomised k-d trees of the index [-], >= 1.
+  /// Randomised k-d trees of the descriptor index (DescriptorIndex, FLANN's method) [-], >= 1.
   int flann_trees = 4;
-  /// FLANN: number of leaves visited per query (more = slower and more exact) [-], >= 1.
+  /// Descriptors compared per query in the index (more = slower and more exact) [-], >= 1.
   int flann_checks = 64;
   /// Lowe's ratio test: a match is kept when its descriptor distance is below ratio_test times
   /// the distance to the second nearest neighbour [-], in (0, 1].
@@ -51,6 +53,9 @@ struct FeatureMatchingOptions {
   /// Fewest matches for a keyframe pair to be usable [matches], >= 0. Applied by the caller
   /// (the pipeline reports NOT_ENOUGH_MATCHES); matchFeatures() returns every good match.
   int min_matches = 15;
+  /// Seed of the descriptor index's random generator (its trees): equal features and seeds give
+  /// equal matches and votes, bit for bit [-].
+  std::uint64_t seed = kDefaultSeed;
 };
 
 /**
@@ -92,7 +97,8 @@ struct FeatureMatches {
 KeyframeFeatures extractFeatures(const cv::Mat& gray8, const FeatureMatchingOptions& options);
 
 /**
- * @brief Matches the features of two keyframes: FLANN k-NN (k = 2) from a to b, Lowe's ratio
+ * @brief Matches the features of two keyframes: approximate k-NN (k = 2, a DescriptorIndex of the
+ * larger side seeded with options.seed) from a to b, Lowe's ratio
  * test, then (when options.symmetric) the mutual-best check: the exact nearest neighbour in a of
  * each b descriptor that some a descriptor chose must be that a descriptor. With the symmetric
  * check on, the smaller of the two descriptor sets is the query side, for speed: the ratio test
@@ -102,9 +108,8 @@ KeyframeFeatures extractFeatures(const cv::Mat& gray8, const FeatureMatchingOpti
  * Each keypoint of a and of b appears in at most one match when the symmetric check is on.
  * Returns no match (never throws for this reason) when either side has fewer than 2 keypoints
  * or empty descriptors. Descriptors that are not CV_32F are converted to CV_32F.
- * FLANN's randomised k-d trees draw from the C library generator std::rand(), so the matches of
- * an image pair can differ slightly from run to run when other code consumes std::rand();
- * an application that needs bit-for-bit repeatable runs seeds it once with std::srand().
+ * The index owns its random generator (options.seed): the same features and options give the
+ * same matches, bit for bit, in any order of calls and whatever else uses random numbers.
  * @param[in] a features of keyframe a
  * @param[in] b features of keyframe b
  * @param[in] options matching options (validated here)
@@ -116,14 +121,14 @@ FeatureMatches matchFeatures(const KeyframeFeatures& a, const KeyframeFeatures& 
                              const FeatureMatchingOptions& options);
 
 /**
- * @brief Cheap keyframe-pair scores for choosing which pairs to match in full: one FLANN index
- * over the descriptors of every keyframe in `targets`; each descriptor of each keyframe in
+ * @brief Cheap keyframe-pair scores for choosing which pairs to match in full: one descriptor
+ * index (seeded with options.seed) over the descriptors of every keyframe in `targets`; each descriptor of each keyframe in
  * `sources` votes for the target keyframe of its nearest descriptor when that neighbour passes
  * the ratio test against the nearest descriptor of any other target keyframe (among the 4
  * nearest; a descriptor whose 4 nearest all lie in one keyframe votes for it).
  * @param[in] sources features of the source keyframes
  * @param[in] targets features of the target keyframes
- * @param[in] options matching options (flann_trees, flann_checks, ratio_test; validated here)
+ * @param[in] options matching options (flann_trees, flann_checks, ratio_test, seed; validated here)
  * @return votes[s][t] for source keyframe s and target keyframe t [descriptors]
  * @throw InputError as matchFeatures()
  */

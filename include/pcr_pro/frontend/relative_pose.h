@@ -26,6 +26,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -81,6 +82,9 @@ struct RelativePoseOptions {
   /// through the optical centre (a line in the image; also catches all-identical points) by at
   /// least this RMS distance, expressed in pixels at focal length f [px], >= 0.
   double min_spread_px = 5.0;
+  /// Seed of RANSAC's random generator (which correspondences each iteration draws): equal
+  /// bearings, options and seed give equal results, bit for bit [-].
+  std::uint64_t seed = kDefaultSeed;
 };
 
 /**
@@ -124,7 +128,8 @@ struct RelativePoseResult {
  *
  * Bearings are normalize(K⁻¹ [u v 1]ᵀ) (PinholeCamera::bearing()); they are normalised again
  * here. Correspondences with a non-finite or zero bearing on either side take no part and are
- * never inliers. RANSAC is seeded with a fixed seed: the result is reproducible. The rotation,
+ * never inliers. RANSAC draws its samples from a generator seeded with options.seed (OpenGV's own
+ * would be seeded with 12345 or the clock): the result is reproducible. The rotation,
  * translation direction and inliers are filled in whenever a model was found, also when the
  * status is kNotEnoughMatches or kDegenerate because of the inliers.
  * @param[in] bearings_target bearing i in the target camera [unit vector]

@@ -6,10 +6,16 @@
 
 #include <Eigen/Core>
 
+#include <cstdint>
 #include <stdexcept>
 #include <string>
 
 namespace pcr_pro {
+
+/// Default seed of the core's random generators (the `seed` field of an options struct, the
+/// node's `~seed`, the tools' `--seed`): every stage owns its generator, seeded from its options,
+/// so equal inputs and seeds give bit-for-bit equal results.
+inline constexpr std::uint64_t kDefaultSeed = 1;
 
 /// A point cloud: one 3D point per column [map units].
 using Cloud = Eigen::Matrix3Xd;

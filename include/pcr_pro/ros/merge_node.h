@@ -1,8 +1,9 @@
 /**
  * @file merge_node.h
- * @brief The merge node (and nodelet): subscriptions per agent, the `~merge` service, the
- * published fused / aligned clouds, the latched edge, tf and diagnostics. The pipeline runs in a
- * worker thread on a copy of the agents' data, so data callbacks keep running during a merge.
+ * @brief The merge node (and nodelet): subscriptions per agent, the `~merge` and `~edges`
+ * services, automatic merging as the maps grow, the published fused / aligned clouds, the latched
+ * edge and merge history, tf and diagnostics. Every merge runs on one worker thread, on a copy of
+ * the agents' data, one at a time: data callbacks keep running during a merge.
  */
 #pragma once
 
@@ -10,6 +11,8 @@
 #include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <lsd_slam_viewer/keyframeGraphMsg.h>
 #include <lsd_slam_viewer/keyframeMsg.h>
+#include <pcr_pro/EdgeHistory.h>
+#include <pcr_pro/GetEdges.h>
 #include <pcr_pro/Keyframe.h>
 #include <pcr_pro/MergeMaps.h>
 #include <ros/callback_queue.h>
@@ -19,15 +22,18 @@
 
 #include <condition_variable>
 #include <deque>
-#include <future>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include "pcr_pro/merge/agent_store.h"
+#include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/ros/auto_merge.h"
 #include "pcr_pro/ros/node_options.h"
 
 namespace pcr_pro {
@@ -37,7 +43,7 @@ class MergeNode {
  public:
   /**
    * @param[in] nh node handle whose namespace holds the agents' topics (X/keyframes, ...)
-   * @param[in] pnh private node handle (~merge, ~fused_cloud, ~aligned_cloud, ~edge)
+   * @param[in] pnh private node handle (~merge, ~edges, ~fused_cloud, ~aligned_cloud, ~edge, ...)
    * @param[in] options validated options (see loadNodeOptions())
    */
   MergeNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, NodeOptions options);
@@ -57,14 +63,28 @@ class MergeNode {
     AgentStore store;
     std::size_t received = 0, rejected = 0, graph_updates = 0;
     std::size_t keyframes_dropped = 0, clouds_voxelised = 0, points_dropped_nonfinite = 0;
+    std::uint64_t keyframes_added = 0, keyframe_moves = 0;  // for automatic merging (MapProgress)
     std::string last_rejection;
     std::map<std::string, Throttle> throttles;
     std::vector<ros::Subscriber> subscribers;
   };
   struct MergeState {
     bool attempted = false;
-    std::string status = "none", message = "no merge yet";
-    int merges_ok = 0, merges_failed = 0;
+    std::string status = "none", message = "no merge yet", pair, trigger;
+    int merges_ok = 0, merges_failed = 0, merges_auto = 0;
+  };
+  /// One merge to run: the agents (resolved names) and optionally the keyframes.
+  struct MergeJob {
+    std::string source, target;
+    MergeRequest keyframes;
+    std::string trigger;  // "service" or "auto"
+  };
+  /// What a merge works on: copies of both stores, taken under their locks.
+  struct Snapshot {
+    Agent* agent = nullptr;
+    AgentStore store;
+    std::string rejections;  // "; N message(s) rejected, the last: ..." or empty
+    MapProgress progress;
   };
 
   void onKeyframe(Agent* agent, const pcr_pro::Keyframe::ConstPtr& msg);
@@ -76,10 +96,39 @@ class MergeNode {
   void warnThrottled(Agent* agent, const std::string& key, const std::string& text);
   void noteDropped(Agent* agent, const std::string& topic, long added, const std::vector<long>& dropped);
   void noteCloudCap(Agent* agent, const std::string& what, const CloudCap& cap);
+  /// Counts a keyframe in the agent's progress: a new id, or a re-sent one (its pose may have moved).
+  static void noteKeyframe(Agent* agent, bool replaced);
+  /// @return the agent's progress; call with agent->mutex held
+  MapProgress progress(const Agent& agent) const;
 
   bool onMergeService(pcr_pro::MergeMaps::Request& request, pcr_pro::MergeMaps::Response& response);
-  pcr_pro::MergeMaps::Response merge(const pcr_pro::MergeMaps::Request& request);
+  bool onEdgesService(pcr_pro::GetEdges::Request& request, pcr_pro::GetEdges::Response& response);
+  /// Checks the agents' progress and queues an automatic merge when a pair is due (timer).
+  void checkAutoMerge();
+  /// Queues work for the merge worker. @return false when the node is shutting down
+  bool enqueue(std::function<void()> job);
   void workerLoop();
+
+  /// Runs one merge (on the worker): resolve, snapshot, check, pipeline, publish, record.
+  pcr_pro::MergeMaps::Response merge(const MergeJob& job);
+  Snapshot takeSnapshot(Agent* agent) const;
+  /// @return NO_DATA / UNKNOWN_KEYFRAME answer when the snapshots cannot be merged as asked
+  std::optional<pcr_pro::MergeMaps::Response> checkData(const MergeJob& job, const Snapshot& source,
+                                                        const AgentMap& source_map, const Snapshot& target,
+                                                        const AgentMap& target_map) const;
+  /**
+   * @brief The one place the node runs the merge pipeline (service and automatic merges alike):
+   * the per-keyframe feature cache of the merge stages plugs in here.
+   */
+  MergeResult runPipeline(const AgentMap& source, const AgentMap& target, const MergeRequest& request) const;
+  /// Publishes the edge, clouds and tf of a successful merge and appends it to the history.
+  void publishMerge(const MergeJob& job, const Snapshot& source, const AgentMap& source_map, const Snapshot& target,
+                    const AgentMap& target_map, const RegistrationReport& report, const std::string& message,
+                    pcr_pro::MapEdge* edge);
+  void recordHistory(const MergeJob& job, const pcr_pro::MapEdge& edge, const std::string& message);
+  /// Logs a merge that did not succeed and counts every outcome for the diagnostics.
+  void noteOutcome(const MergeJob& job, const pcr_pro::MergeMaps::Response& response);
+  Agent* findAgent(const std::string& name) const;
 
   void agentDiagnostics(Agent* agent, diagnostic_updater::DiagnosticStatusWrapper& status);
   void mergeDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& status);
@@ -88,23 +137,32 @@ class MergeNode {
   const NodeOptions options_;
   std::vector<std::unique_ptr<Agent>> agents_;
 
-  ros::Publisher fused_pub_, aligned_pub_, edge_pub_, edge_pose_pub_;
+  ros::Publisher fused_pub_, aligned_pub_, edge_pub_, edge_pose_pub_, history_pub_;
   tf2_ros::StaticTransformBroadcaster static_tf_;
   diagnostic_updater::Updater diagnostics_;
-  ros::Timer diagnostics_timer_;
+  ros::Timer diagnostics_timer_, auto_merge_timer_;
 
   std::mutex merge_state_mutex_;
   MergeState merge_state_;
 
-  // The service has its own callback queue and thread: a merge never blocks data callbacks.
+  // Automatic merging: the schedule, and whether an automatic merge is queued or running.
+  std::mutex auto_mutex_;
+  std::unique_ptr<AutoMergeSchedule> schedule_;
+  bool auto_pending_ = false;
+
+  // Every successful edge, oldest first (bounded per pair by max_history_per_pair).
+  std::mutex history_mutex_;
+  std::vector<pcr_pro::MergeRecord> history_;
+
+  // The merge service has its own callback queue and thread: a merge never blocks data callbacks.
   ros::CallbackQueue service_queue_;
-  ros::ServiceServer merge_service_;
+  ros::ServiceServer merge_service_, edges_service_;
   std::unique_ptr<ros::AsyncSpinner> service_spinner_;
 
-  // Worker thread running the pipeline.
+  // The worker thread running the pipeline, one merge at a time.
   std::mutex jobs_mutex_;
   std::condition_variable jobs_cv_;
-  std::deque<std::packaged_task<pcr_pro::MergeMaps::Response()>> jobs_;
+  std::deque<std::function<void()>> jobs_;
   bool stop_ = false;
   std::thread worker_;
 };

@@ -8,12 +8,14 @@
 
 #include <ros/node_handle.h>
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
-#include "pcr_pro/merge/merge_pipeline.h"
-#include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/io/lsd_keyframe.h"
+#include "pcr_pro/merge/agent_store.h"
+#include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/ros/auto_merge.h"
 
 namespace pcr_pro {
 namespace ros_bridge {
@@ -33,6 +35,14 @@ struct AgentOptions {
   std::string frame_id;  ///< its map frame, default "<name>/map", no leading slash
 };
 
+/**
+ * @brief The frame of a source map scaled into target units: `<frame_id>_scaled` (e.g.
+ * agent_b/map_scaled). Its origin and axes are those of the source map, its unit the target's:
+ * a point p of the source map is s * p there, so that the rigid part of S_target_source is its
+ * tf from the target map (tf carries no scale). `~aligned_cloud` is stamped with it.
+ */
+std::string scaledFrame(const std::string& frame_id);
+
 /// Parameters of the merge node (private namespace `~`).
 struct NodeOptions {
   /// `~agents`: the agents; the first is the default merge target, the second the default source.
@@ -41,7 +51,7 @@ struct NodeOptions {
   InputMode input = InputMode::kPcrPro;
   /// `~queue_size`: subscriber queue length per topic [messages], >= 1.
   int queue_size = 10;
-  /// `~publish_tf`: broadcast target_map -> source_map (static tf) after each merge.
+  /// `~publish_tf`: broadcast target_map -> scaledFrame(source_map) (static tf, rigid) after each merge.
   bool publish_tf = true;
   /// `~merge_config`: merge configuration file (config/merge.yaml format); empty = defaults.
   std::string merge_config;
@@ -52,19 +62,35 @@ struct NodeOptions {
   LsdFilterOptions lsd;
   /// `~max_keyframes_per_agent`, `~max_cloud_points_per_agent`: memory bounds of each agent's store.
   StoreLimits limits;
-  /// The pipeline configuration read from merge_config / icp_config.
+  /// `~seed`: seed of every random stage of the merge (setSeed()), in [0, 2147483647]: equal data
+  /// and seed give bit-for-bit equal edges.
+  std::int64_t seed = static_cast<std::int64_t>(kDefaultSeed);
+  /// `~diagnostic_period`: period of the diagnostics on /diagnostics [s], in [0.1, 60].
+  double diagnostic_period = 1.0;
+  /// `~auto_merge/...`: automatic merging as the maps grow.
+  AutoMergeOptions auto_merge;
+  /// `~max_history_per_pair`: most successful edges kept per agent pair in the merge history
+  /// (`~edge_history`, `~edges`); beyond it the oldest goes [edges], >= 1.
+  int max_history_per_pair = 1000;
+  /// The pipeline configuration read from merge_config / icp_config, seeded with `seed`.
   MergeOptions merge;
+
+  /// @return the agent every other one is merged into automatically (auto_merge.target or the first)
+  const std::string& autoMergeTarget() const { return auto_merge.target.empty() ? agents[0].name : auto_merge.target; }
 };
 
 /// @throw InputError "~key: what" for the first invalid option (agents: at least two, unique
-/// valid relative names; frame ids non-empty, unique, no leading slash; queue_size >= 1; lsd filters;
-/// store limits)
+/// valid relative names; frame ids non-empty, unique, no leading slash, none the scaled frame of
+/// another; queue_size >= 1; lsd filters; store limits; seed; diagnostic_period; auto_merge, whose
+/// target must be an agent; max_history_per_pair)
 void validate(const NodeOptions& options);
 
 /**
  * @brief Reads every parameter from the node's private namespace, loads the configuration
  * files and validates everything. Keys that are absent keep the struct defaults; keys of the
- * wrong type, unknown keys (typos) and out-of-range values are errors.
+ * wrong type, unknown keys (typos) and out-of-range values are errors. A list parameter given as
+ * a string (`_agents:="[r1, r2]"` on the command line, which roscpp stores as a string) is read
+ * as a YAML list.
  * @param[in] pnh private node handle ("~")
  * @throw InputError "~key: what is wrong" (or the configuration file's own error)
  */

@@ -5,9 +5,10 @@
 #include <algorithm>
 #include <cmath>
 #include <opencv2/features2d.hpp>
-#include <opencv2/flann.hpp>
 #include <opencv2/imgproc.hpp>
 #include <string>
+
+#include "pcr_pro/frontend/descriptor_index.h"
 
 namespace pcr_pro {
 namespace {
@@ -27,29 +28,23 @@ cv::Mat usableDescriptors(const KeyframeFeatures& f, const char* side) {
   return converted;
 }
 
-cv::FlannBasedMatcher makeMatcher(const FeatureMatchingOptions& options) {
-  return cv::FlannBasedMatcher(cv::makePtr<cv::flann::KDTreeIndexParams>(options.flann_trees),
-                               cv::makePtr<cv::flann::SearchParams>(options.flann_checks));
-}
-
-// query -> train: FLANN k-NN (k = 2) with the ratio test, then (options.symmetric) the mutual
-// check: the exact nearest query descriptor of each chosen train descriptor (a few hundred
-// scans, cheaper than a second FLANN index, and exact) must be the one that chose it.
+// query -> train: approximate k-NN (k = 2) in a seeded descriptor index of `train` with the ratio
+// test, then (options.symmetric) the mutual check: the exact nearest query descriptor of each
+// chosen train descriptor (a few hundred scans, cheaper than a second index, and exact) must be
+// the one that chose it. Distances are L2 (not squared), as the ratio test wants them.
 std::vector<cv::DMatch> ratioAndMutual(const cv::Mat& query, const cv::Mat& train, const FeatureMatchingOptions& options) {
-  std::vector<std::vector<cv::DMatch>> knn;
-  makeMatcher(options).knnMatch(query, train, knn, 2);
+  const DescriptorIndex index(train, options.flann_trees, options.seed);
+  DescriptorIndex::Searcher searcher(index);
+  std::vector<DescriptorNeighbor> nn;
   std::vector<cv::DMatch> good;
-  good.reserve(knn.size());
-  for (const auto& m : knn) {
-    if (m.size() < 2) continue;
-    const cv::DMatch& best = m[0];
-    const cv::DMatch& second = m[1];
-    if (best.queryIdx < 0 || best.queryIdx >= query.rows || best.trainIdx < 0 || best.trainIdx >= train.rows) {
-      continue;
-    }
-    if (!std::isfinite(best.distance) || !std::isfinite(second.distance)) continue;
-    if (!(best.distance < options.ratio_test * second.distance)) continue;
-    good.push_back(best);
+  good.reserve(static_cast<std::size_t>(query.rows));
+  for (int q = 0; q < query.rows; ++q) {
+    searcher.knn(query.ptr<float>(q), 2, options.flann_checks, &nn);
+    if (nn.size() < 2) continue;
+    const float best = std::sqrt(nn[0].squared_distance), second = std::sqrt(nn[1].squared_distance);
+    if (!std::isfinite(best) || !std::isfinite(second)) continue;
+    if (!(best < options.ratio_test * second)) continue;
+    good.emplace_back(q, nn[0].index, best);
   }
   if (!options.symmetric) return good;
   using RowMatrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
@@ -139,7 +134,7 @@ FeatureMatches matchFeatures(const KeyframeFeatures& a, const KeyframeFeatures& 
                      std::to_string(desc_b.cols) + ")");
   }
 
-  // With the symmetric check on, the smaller descriptor set queries a FLANN index of the larger
+  // With the symmetric check on, the smaller descriptor set queries an index of the larger
   // one (fewer queries); the ratio test then applies from the smaller side.
   const bool swap = options.symmetric && desc_a.rows > desc_b.rows;
   std::vector<cv::DMatch> good = swap ? ratioAndMutual(desc_b, desc_a, options) : ratioAndMutual(desc_a, desc_b, options);
@@ -186,23 +181,23 @@ std::vector<std::vector<int>> keyframePairVotes(const std::vector<const Keyframe
   if (owner.size() < 2) return votes;
   cv::Mat all;
   cv::vconcat(parts, all);
-  cv::FlannBasedMatcher matcher = makeMatcher(options);
-  matcher.add(std::vector<cv::Mat>{all});
-  matcher.train();
+  const DescriptorIndex index(all, options.flann_trees, options.seed);
+  DescriptorIndex::Searcher searcher(index);
+  std::vector<DescriptorNeighbor> m;
+  // The ratio test on distances, compared squared: d0 < r * dk  <=>  d0^2 < r^2 * dk^2.
+  const float ratio2 = static_cast<float>(options.ratio_test * options.ratio_test);
   for (std::size_t s = 0; s < sources.size(); ++s) {
     const cv::Mat q = usableDescriptors(*sources[s], "source");
     if (q.empty()) continue;
     if (q.cols != length) throw InputError("keyframePairVotes: descriptor lengths differ");
-    std::vector<std::vector<cv::DMatch>> knn;
-    matcher.knnMatch(q, knn, 4);
-    for (const auto& m : knn) {
-      if (m.empty() || m[0].trainIdx < 0 || static_cast<std::size_t>(m[0].trainIdx) >= owner.size()) continue;
-      const int best = owner[static_cast<std::size_t>(m[0].trainIdx)];
+    for (int row = 0; row < q.rows; ++row) {
+      searcher.knn(q.ptr<float>(row), 4, options.flann_checks, &m);
+      if (m.empty()) continue;
+      const int best = owner[static_cast<std::size_t>(m[0].index)];
       bool accept = true;
       for (std::size_t k = 1; k < m.size(); ++k) {
-        if (m[k].trainIdx < 0 || static_cast<std::size_t>(m[k].trainIdx) >= owner.size()) continue;
-        if (owner[static_cast<std::size_t>(m[k].trainIdx)] != best) {
-          accept = m[0].distance < options.ratio_test * m[k].distance;
+        if (owner[static_cast<std::size_t>(m[k].index)] != best) {
+          accept = m[0].squared_distance < ratio2 * m[k].squared_distance;
           break;
         }
       }

@@ -5,11 +5,13 @@
 #include <cctype>
 #include <cmath>
 #include <exception>
+#include <functional>
 #include <memory>
 #include <opengv/relative_pose/CentralRelativeAdapter.hpp>
 #include <opengv/relative_pose/methods.hpp>
 #include <opengv/sac/Ransac.hpp>
 #include <opengv/sac_problems/relative_pose/CentralRelativePoseSacProblem.hpp>
+#include <random>
 #include <sstream>
 
 #include "pcr_pro/geometry/sim3.h"
@@ -198,6 +200,10 @@ RelativePoseResult estimateRelativePose(const std::vector<Eigen::Vector3d>& bear
   try {
     opengv::relative_pose::CentralRelativeAdapter adapter(target, source);
     auto problem = std::make_shared<SacProblem>(adapter, toOpengv(options.algorithm), /*randomSeed=*/false);
+    // OpenGV binds a copy of its generator, seeded with 12345, into rng_gen_ at construction:
+    // re-seed the generator and bind it anew, so that options.seed decides the samples.
+    problem->rng_alg_.seed(static_cast<std::mt19937::result_type>(options.seed ^ (options.seed >> 32)));
+    problem->rng_gen_ = std::make_shared<std::function<int()>>(std::bind(*problem->rng_dist_, problem->rng_alg_));
     opengv::sac::Ransac<SacProblem> ransac;
     ransac.sac_model_ = problem;
     ransac.threshold_ = threshold;

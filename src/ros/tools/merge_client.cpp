@@ -6,14 +6,21 @@
 //   settle_time (double, default 1.0) [s]         pause after that, for the last messages to arrive
 //   timeout (double, default 120.0) [s]           give up waiting after this long
 //   source_agent / target_agent (string, default "")  as in the request ("" = node default)
-//   source_keyframe / target_keyframe (int, default -1)
+//   source_keyframe / target_keyframe (int, absent)   merge from this keyframe (use_*_keyframe);
+//                                                 absent = the pipeline chooses the pair
 //   truth_file (string, default "")               a truth.yaml: also print the errors of the edge
 //   output_file (string, default "")              also write the YAML to this file
+//   end_launch (bool, default false)              when done, end the roslaunch that started this
+//                                                 client as Ctrl-C would (SIGINT to the parent
+//                                                 roslaunch process): demo.launch ends by itself
 // Exit status: 0 merged, 1 not merged (the status says why), 2 no answer.
 #include <ros/master.h>
 #include <ros/ros.h>
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <csignal>
 #include <cstdio>
 #include <fstream>
 #include <sstream>
@@ -39,6 +46,21 @@ std::string list(const T& values, std::size_t n) {
   for (std::size_t i = 0; i < n; ++i) s << (i ? ", " : "") << values[i];
   s << "]";
   return s.str();
+}
+
+// Ends the roslaunch that started this process as Ctrl-C would: roslaunch runs its nodes as its
+// children, and a SIGINT makes it stop them all and exit without the red "REQUIRED process has
+// died" banner of required="true". Only a parent whose command line names roslaunch is signalled.
+void endLaunch() {
+  const pid_t parent = getppid();
+  std::ifstream cmdline("/proc/" + std::to_string(parent) + "/cmdline");
+  const std::string command((std::istreambuf_iterator<char>(cmdline)), {});
+  if (command.find("roslaunch") == std::string::npos) {
+    ROS_WARN("end_launch: the parent process %d is not roslaunch; not ending it", static_cast<int>(parent));
+    return;
+  }
+  ROS_INFO("done: ending the launch");
+  kill(parent, SIGINT);
 }
 
 std::string quoted(const std::string& text) {
@@ -77,8 +99,9 @@ int main(int argc, char** argv) {
   pcr_pro::MergeMaps srv;
   srv.request.source_agent = pnh.param<std::string>("source_agent", "");
   srv.request.target_agent = pnh.param<std::string>("target_agent", "");
-  srv.request.source_keyframe = pnh.param("source_keyframe", -1);
-  srv.request.target_keyframe = pnh.param("target_keyframe", -1);
+  int id = 0;
+  if ((srv.request.use_source_keyframe = pnh.getParam("source_keyframe", id))) srv.request.source_keyframe = id;
+  if ((srv.request.use_target_keyframe = pnh.getParam("target_keyframe", id))) srv.request.target_keyframe = id;
   if (!ros::service::call(service, srv)) {
     ROS_ERROR("calling %s failed", service.c_str());
     return 2;
@@ -121,5 +144,6 @@ int main(int argc, char** argv) {
     out << y.str();
     if (!out) ROS_ERROR("cannot write %s", output_file.c_str());
   }
+  if (pnh.param("end_launch", false)) endLaunch();
   return r.status == pcr_pro::MergeMaps::Response::OK ? 0 : 1;
 }

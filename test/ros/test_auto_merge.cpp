@@ -1,0 +1,118 @@
+// When the merge node merges on its own (AutoMergeSchedule) and the validation of the node's new
+// options (issue 14): gtest, no ROS master.
+#include <gtest/gtest.h>
+
+#include <functional>
+
+#include "pcr_pro/ros/auto_merge.h"
+#include "pcr_pro/ros/node_options.h"
+
+namespace pcr_pro {
+namespace ros_bridge {
+namespace {
+
+MapProgress progress(std::size_t keyframes, std::uint64_t added, std::uint64_t moved = 0, bool cloud = true) {
+  MapProgress p;
+  p.keyframes = keyframes;
+  p.added = added;
+  p.moved = moved;
+  p.has_cloud = cloud;
+  return p;
+}
+
+AutoMergeOptions options(int min_keyframes, int new_keyframes, bool after_graph_update = true) {
+  AutoMergeOptions o;
+  o.enabled = true;
+  o.min_keyframes = min_keyframes;
+  o.new_keyframes = new_keyframes;
+  o.after_graph_update = after_graph_update;
+  return o;
+}
+
+TEST(AutoMergeSchedule, FirstMergeOnceBothMapsHaveEnoughKeyframesAndACloud) {
+  AutoMergeSchedule s(options(3, 5), "a", {"b"});
+  EXPECT_TRUE(s.due({{"a", progress(3, 3)}, {"b", progress(2, 2)}}).source.empty());
+  EXPECT_TRUE(s.due({{"a", progress(3, 3)}, {"b", progress(3, 3, 0, false)}}).source.empty()) << "no cloud yet";
+  EXPECT_TRUE(s.due({{"b", progress(3, 3)}}).source.empty()) << "target unknown";
+  const DueMerge due = s.due({{"a", progress(3, 3)}, {"b", progress(3, 3)}});
+  EXPECT_EQ(due.source, "b");
+  EXPECT_EQ(due.reason, "first merge");
+}
+
+TEST(AutoMergeSchedule, AgainAfterGrowthOrMovedKeyframesNotBefore) {
+  AutoMergeSchedule s(options(2, 4), "a", {"b"});
+  s.attempted("b", progress(2, 2), progress(3, 3));
+  EXPECT_TRUE(s.due({{"a", progress(3, 3)}, {"b", progress(2, 2)}}).source.empty()) << "nothing changed";
+  // Growth counts new ids in both maps together (the keyframe cap may keep the counts flat).
+  EXPECT_TRUE(s.due({{"a", progress(3, 5)}, {"b", progress(2, 3)}}).source.empty()) << "3 new < 4";
+  DueMerge due = s.due({{"a", progress(3, 6)}, {"b", progress(2, 3)}});
+  EXPECT_EQ(due.source, "b");
+  EXPECT_EQ(due.reason, "4 new keyframes");
+  // A graph update or a re-sent keyframe of either map.
+  due = s.due({{"a", progress(3, 3, 1)}, {"b", progress(2, 2)}});
+  EXPECT_EQ(due.reason, "keyframes moved");
+  // ... unless disabled.
+  AutoMergeSchedule quiet(options(2, 4, false), "a", {"b"});
+  quiet.attempted("b", progress(2, 2), progress(3, 3));
+  EXPECT_TRUE(quiet.due({{"a", progress(3, 3, 5)}, {"b", progress(2, 2, 5)}}).source.empty());
+  // A failed attempt counts as an attempt: no retry until the maps change.
+  s.attempted("b", progress(2, 3), progress(3, 6));
+  EXPECT_TRUE(s.due({{"a", progress(3, 6)}, {"b", progress(2, 3)}}).source.empty());
+}
+
+TEST(AutoMergeSchedule, PairsTakeTurns) {
+  AutoMergeSchedule s(options(1, 1), "a", {"b", "c"});
+  const std::map<std::string, MapProgress> all{{"a", progress(1, 1)}, {"b", progress(1, 1)}, {"c", progress(1, 1)}};
+  EXPECT_EQ(s.due(all).source, "b");
+  EXPECT_EQ(s.due(all).source, "c");  // b is still due (never attempted), but c's turn comes first
+  s.attempted("b", progress(1, 1), progress(1, 1));
+  s.attempted("c", progress(1, 1), progress(1, 1));
+  EXPECT_TRUE(s.due(all).source.empty());
+}
+
+TEST(AutoMergeOptions, RangesAreEnforced) {
+  EXPECT_NO_THROW(validate(AutoMergeOptions()));
+  AutoMergeOptions o;
+  o.min_keyframes = 0;
+  EXPECT_THROW(validate(o), InputError);
+  o = AutoMergeOptions();
+  o.new_keyframes = 0;
+  EXPECT_THROW(validate(o), InputError);
+  for (const double period : {0.0, -1.0, 0.001, 61.0}) {
+    o = AutoMergeOptions();
+    o.period = period;
+    EXPECT_THROW(validate(o), InputError) << period;
+  }
+}
+
+TEST(NodeOptions, NewRangesAreEnforcedNamingTheKey) {
+  const auto refused = [](const std::function<void(NodeOptions&)>& change, const std::string& key) {
+    NodeOptions o;
+    change(o);
+    try {
+      validate(o);
+      ADD_FAILURE() << key << " accepted";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("~" + key), std::string::npos) << e.what();
+    }
+  };
+  EXPECT_NO_THROW(validate(NodeOptions()));
+  for (const double period : {0.0, -1.0, 0.001, 61.0}) {
+    refused([&](NodeOptions& o) { o.diagnostic_period = period; }, "diagnostic_period");
+  }
+  refused([](NodeOptions& o) { o.seed = -1; }, "seed");
+  refused([](NodeOptions& o) { o.seed = 2147483648LL; }, "seed");
+  refused([](NodeOptions& o) { o.max_history_per_pair = 0; }, "max_history_per_pair");
+  refused([](NodeOptions& o) { o.auto_merge.target = "agent_x"; }, "auto_merge/target");
+  refused([](NodeOptions& o) { o.auto_merge.period = 0.0; }, "auto_merge/period");
+  refused([](NodeOptions& o) { o.agents[1].frame_id = "agent_a/map_scaled"; }, "agent_b/frame_id");
+  NodeOptions d;
+  EXPECT_EQ(d.autoMergeTarget(), "agent_a");
+  d.auto_merge.target = "agent_b";
+  EXPECT_EQ(d.autoMergeTarget(), "agent_b");
+  EXPECT_EQ(scaledFrame("agent_b/map"), "agent_b/map_scaled");
+}
+
+}  // namespace
+}  // namespace ros_bridge
+}  // namespace pcr_pro
