@@ -50,7 +50,11 @@ constexpr double kWarnPeriod = 5.0;
 }  // namespace
 
 MergeNode::MergeNode(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, NodeOptions options)
-    : nh_(nh), pnh_(pnh), options_(std::move(options)), diagnostics_(nh_, pnh_) {
+    : nh_(nh),
+      pnh_(pnh),
+      options_(std::move(options)),
+      pipeline_(std::make_unique<MergePipeline>(options_.merge)),
+      diagnostics_(nh_, pnh_) {
   fused_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("fused_cloud", 1, true);
   aligned_pub_ = pnh_.advertise<sensor_msgs::PointCloud2>("aligned_cloud", 1, true);
   edge_pub_ = pnh_.advertise<pcr_pro::MapEdge>("edge", 1, true);
@@ -219,6 +223,7 @@ void MergeNode::onKeyframe(Agent* agent, const pcr_pro::Keyframe::ConstPtr& msg)
     ++agent->received;
     noteKeyframe(agent, replaced);
     noteDropped(agent, topic, data.keyframe.id, dropped);
+    forgetFeatures(*agent, data.keyframe.id, replaced, dropped);
     if (first) ROS_INFO("%s: first keyframe (id %ld)", agent->options.name.c_str(), data.keyframe.id);
     ROS_DEBUG("%s: keyframe %ld %s", agent->options.name.c_str(), data.keyframe.id, replaced ? "replaced" : "added");
   } catch (const InputError& e) {
@@ -279,6 +284,7 @@ void MergeNode::onLsdKeyframe(Agent* agent, const lsd_slam_viewer::keyframeMsg::
     ++agent->received;
     noteKeyframe(agent, replaced);
     noteDropped(agent, topic, kf.id, dropped);
+    forgetFeatures(*agent, kf.id, replaced, dropped);
     if (first) ROS_INFO("%s: first LSD-SLAM keyframe (id %ld)", agent->options.name.c_str(), kf.id);
     ROS_DEBUG("%s: LSD-SLAM keyframe %ld %s", agent->options.name.c_str(), kf.id, replaced ? "replaced" : "added");
   } catch (const InputError& e) {
@@ -473,8 +479,15 @@ std::optional<Response> MergeNode::checkData(const MergeJob& job, const Snapshot
   return std::nullopt;
 }
 
-MergeResult MergeNode::runPipeline(const AgentMap& source, const AgentMap& target, const MergeRequest& request) const {
-  return mergeMaps(source, target, request, options_.merge);
+MergeResult MergeNode::runPipeline(const AgentMap& source, const std::string& source_agent, const AgentMap& target,
+                                   const std::string& target_agent, const MergeRequest& request) {
+  return pipeline_->merge(source, target, request, source_agent, target_agent);
+}
+
+void MergeNode::forgetFeatures(const Agent& agent, long replaced_id, bool replaced, const std::vector<long>& dropped) {
+  // The cache also checks each keyframe's image content; this keeps it from holding stale entries.
+  if (replaced) pipeline_->featureCache().invalidate(agent.options.name, replaced_id);
+  for (long id : dropped) pipeline_->featureCache().invalidate(agent.options.name, id);
 }
 
 Response MergeNode::merge(const MergeJob& job) {
@@ -510,7 +523,7 @@ Response MergeNode::merge(const MergeJob& job) {
                target_map.keyframes.size(), static_cast<long>(target_map.cloud.cols()), job.trigger.c_str());
       MergeResult result;
       try {
-        result = runPipeline(source_map, target_map, job.keyframes);
+        result = runPipeline(source_map, job.source, target_map, job.target, job.keyframes);
       } catch (const std::exception& e) {
         result.report.status = Status::kInvalidInput;
         result.report.message = e.what();

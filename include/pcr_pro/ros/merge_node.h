@@ -117,10 +117,14 @@ class MergeNode {
                                                         const AgentMap& source_map, const Snapshot& target,
                                                         const AgentMap& target_map) const;
   /**
-   * @brief The one place the node runs the merge pipeline (service and automatic merges alike):
-   * the per-keyframe feature cache of the merge stages plugs in here.
+   * @brief The one place the node runs the merge pipeline (service and automatic merges alike),
+   * on the node's one MergePipeline, whose feature cache keeps every keyframe's SIFT features
+   * across merges (keyed by agent name and keyframe id).
    */
-  MergeResult runPipeline(const AgentMap& source, const AgentMap& target, const MergeRequest& request) const;
+  MergeResult runPipeline(const AgentMap& source, const std::string& source_agent, const AgentMap& target,
+                          const std::string& target_agent, const MergeRequest& request);
+  /// Drops the cached features of keyframes that were replaced or left the agent's store.
+  void forgetFeatures(const Agent& agent, long replaced_id, bool replaced, const std::vector<long>& dropped);
   /// Publishes the edge, clouds and tf of a successful merge and appends it to the history.
   void publishMerge(const MergeJob& job, const Snapshot& source, const AgentMap& source_map, const Snapshot& target,
                     const AgentMap& target_map, const RegistrationReport& report, const std::string& message,
@@ -135,6 +139,8 @@ class MergeNode {
 
   ros::NodeHandle nh_, pnh_;
   const NodeOptions options_;
+  /// The merge, built once: its feature cache is thread-safe; merges run on the worker only.
+  std::unique_ptr<MergePipeline> pipeline_;
   std::vector<std::unique_ptr<Agent>> agents_;
 
   ros::Publisher fused_pub_, aligned_pub_, edge_pub_, edge_pose_pub_, history_pub_;
