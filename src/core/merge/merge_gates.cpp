@@ -16,6 +16,15 @@ std::string fmt(double v, int precision = 3) {
   return os.str();
 }
 
+// A refinement this many times farther from the keyframe estimate than the agreement gate makes
+// the merge refuse: at twice the gate's Mahalanobis length the two estimates exclude each other
+// at any reasonable confidence, so at least one is wrong and the data cannot say which.
+constexpr double kRefuseFactor = 4.0;
+// The clouds prefer the refined estimate when its overlap exceeds the keyframe estimate's by this
+// factor: the overlap of a correct alignment varies by a few percent with the estimate's noise,
+// a wrong one loses a large part of it.
+constexpr double kCloudPreference = 1.2;
+
 }  // namespace
 
 MergeGates::MergeGates(const MergeGateOptions& options) : options_(options) { validate(options_); }
@@ -58,6 +67,34 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
   } else {
     v.estimate = keyframes.estimate;
     v.covariance = keyframes.covariance;
+    if (refined) {
+      // Two estimates disagree and the keyframe one is reported: its covariance must cover the
+      // other (the truth may lie anywhere between them). Past a wide disagreement neither is
+      // trusted: refused, not merged wrongly.
+      if (v.refinement_chi2 > kRefuseFactor * options_.refinement_agreement_chi2) {
+        v.status = Status::kIcpNotConverged;
+        v.message = "refused: the refinement and the keyframe matches disagree far beyond their uncertainty (" +
+                    why + "; rotation " + fmt(v.rotation_correction_deg) + " deg, scale " +
+                    fmt(100 * v.scale_disagreement) + " % apart)";
+        v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor);
+        return v;
+      }
+      // The clouds' own vote: when they fit clearly better at the refined estimate, the keyframe
+      // evidence is the suspect one (wide-baseline pairs with few inliers can all be wrong alike),
+      // and keeping it would merge wrongly: refused.
+      const double overlap_keyframes = registration.overlap(keyframes.estimate, options_.overlap_distance_factor);
+      const double overlap_refined = registration.overlap(refinement.estimate, options_.overlap_distance_factor);
+      if (overlap_refined > kCloudPreference * overlap_keyframes) {
+        v.status = Status::kIcpNotConverged;
+        v.message = "refused: " + why + ", and the clouds fit the refined estimate better (overlap " +
+                    fmt(100 * overlap_refined) + " % against " + fmt(100 * overlap_keyframes) +
+                    " % at the keyframe estimate): the keyframe evidence is not trusted";
+        v.overlap = overlap_keyframes;
+        return v;
+      }
+      const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
+      v.covariance = coveringCovariance(keyframes.covariance, d * d.transpose() + 1e-12 * keyframes.covariance);
+    }
   }
   v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor);
   const std::string kept = v.refinement_kept ? "refined estimate" : "keyframe estimate kept: " + why;
