@@ -117,6 +117,7 @@ TEST(Merge, VotePreselectionKeepsTheBestPair) {
   const MergeResult all = mergeMaps(source, target, MergeRequest(), MergeOptions());
   MergeOptions two;
   two.merge.max_candidate_pairs = 2;
+  two.merge.local_keyframes = 0;  // the preselection alone, without the best pair's neighbourhood
   const MergeResult few = mergeMaps(source, target, MergeRequest(), two);
   ASSERT_EQ(all.report.status, Status::kOk) << all.report.message;
   ASSERT_EQ(few.report.status, Status::kOk) << few.report.message;
@@ -125,6 +126,10 @@ TEST(Merge, VotePreselectionKeepsTheBestPair) {
   EXPECT_EQ(few.diagnostics.keyframe_pairs, 6);
   EXPECT_EQ(few.report.source_keyframe, all.report.source_keyframe);
   EXPECT_EQ(few.report.target_keyframe, all.report.target_keyframe);
+  // With the neighbourhood (merge.local_keyframes 3), every pair within 3 keyframes of the best
+  // verified one is matched as well: here all 6.
+  two.merge.local_keyframes = 3;
+  EXPECT_EQ(mergeMaps(source, target, MergeRequest(), two).diagnostics.candidate_pairs, 6);
 }
 
 TEST(Merge, NonOverlappingMapsAreRefused) {
@@ -160,6 +165,9 @@ TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
   EXPECT_EQ(shipped.relative_pose.pixel_error, d.relative_pose.pixel_error);
   EXPECT_EQ(shipped.relative_pose.min_inliers, d.relative_pose.min_inliers);
   EXPECT_EQ(shipped.keyframe_depth.neighborhood_radius_px, d.keyframe_depth.neighborhood_radius_px);
+  EXPECT_EQ(shipped.keyframe_depth.spatial_sigma_px, d.keyframe_depth.spatial_sigma_px);
+  EXPECT_EQ(shipped.keyframe_depth.max_relative_stddev, d.keyframe_depth.max_relative_stddev);
+  EXPECT_EQ(shipped.merge.local_keyframes, d.merge.local_keyframes);
   EXPECT_EQ(shipped.scale_estimation.gating_chi2, d.scale_estimation.gating_chi2);
   EXPECT_EQ(shipped.merge.min_overlap, d.merge.min_overlap);
   EXPECT_EQ(shipped.merge.refine_scale, d.merge.refine_scale);
@@ -169,6 +177,9 @@ TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
   EXPECT_THROW(parseMergeConfig("matching: {ratio_test: 2}\n", "x.yaml"), InputError);
   EXPECT_THROW(parseMergeConfig("merge: {min_overlap: -1}\n", "x.yaml"), InputError);
   EXPECT_THROW(parseMergeConfig("merge: {max_candidate_pairs: -1}\n", "x.yaml"), InputError);
+  EXPECT_THROW(parseMergeConfig("merge: {local_keyframes: -1}\n", "x.yaml"), InputError);
+  EXPECT_THROW(parseMergeConfig("keyframe_depth: {max_relative_stddev: 1.5}\n", "x.yaml"), InputError);
+  EXPECT_THROW(parseMergeConfig("keyframe_depth: {spatial_sigma_px: 0}\n", "x.yaml"), InputError);
 }
 
 // --- the pcr_pro_merge command line

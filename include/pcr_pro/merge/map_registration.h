@@ -20,6 +20,12 @@
 
 namespace pcr_pro {
 
+/// A ball in the target map's frame where the overlap is measured (MapRegistration::overlap()).
+struct OverlapRegion {
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();  ///< [target units]
+  double radius = 0.0;                               ///< [target units]; 0 = the whole maps
+};
+
 /// Outcome of MapRegistration::refine().
 struct Refinement {
   Status status = Status::kIcpNotConverged;  ///< kOk, kDegenerate or kIcpNotConverged
@@ -66,8 +72,9 @@ class MapRegistration {
    * @brief Overlap of the aligned maps: the larger of the fraction of (a sample of) the source
    * points that have a target point within `factor` spacings and the same fraction of the target
    * points towards the source; the spacing is the larger of the two clouds' median spacings.
+   * Only the points that the alignment puts inside `region` count (default: all).
    */
-  double overlap(const Sim3& target_source, double factor) const;
+  double overlap(const Sim3& target_source, double factor, const OverlapRegion& region = OverlapRegion()) const;
 
   const Cloud& source() const { return source_; }
   const Cloud& target() const { return target_; }

@@ -39,9 +39,13 @@ class MergeGates {
    * The refinement is kept when it converged, agrees with the keyframe estimate within
    * refinement_agreement_chi2 (7 DoF, both covariances), rotates it by at most
    * max_icp_rotation_correction_deg and changes its scale by at most max_scale_disagreement; its
-   * covariance is then scaled by max(1, χ² / 7), the disagreement of two independent estimates.
+   * covariance is then scaled by max(1, χ² / 7), the disagreement of two independent estimates,
+   * plus the keyframe pairs' between-pair covariance (KeyframeEstimate::between: the edge is
+   * attached to one keyframe pair, where the local similarity differs from the region's).
    * Otherwise the keyframe estimate and its covariance are reported, with why in the message.
-   * The reported estimate must then overlap the target by min_overlap (MapRegistration::overlap()).
+   * The reported estimate must then overlap the target by min_overlap (MapRegistration::overlap()),
+   * measured in the ball that holds the pooled keyframe matches (where the maps overlap: each
+   * monocular map drifts, so outside it the maps need not align).
    */
   GateVerdict judge(const KeyframeEstimate& keyframes, const Refinement& refinement,
                     const MapRegistration& registration) const;

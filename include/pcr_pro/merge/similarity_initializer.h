@@ -27,6 +27,10 @@ struct PairEvidence {
   int inliers = 0;        ///< relative-pose inliers
   int depth_matches = 0;  ///< inliers with depth on both sides
   ScaleEstimate scale;    ///< the pair's Kalman-filter scale
+  /// Distance between the two keyframes' cameras over the median distance of the target
+  /// keyframe's matched points (both in target units), when the scale filter succeeded [-]: how
+  /// far apart the two keyframes see the overlap from (0 = from the same place).
+  double baseline_ratio = 0.0;
   bool has_estimate = false;  ///< the scale filter succeeded: estimate and covariance are set
   Sim3 estimate;              ///< the pair's own S_target_source
   Matrix7d covariance = Matrix7d::Zero();  ///< of estimate (similarity_fit.h convention)
@@ -44,15 +48,26 @@ struct KeyframeEstimate {
   /// kOk; or the status of the best pair's failure (NOT_ENOUGH_MATCHES, SCALE_FAILED, ...).
   Status status = Status::kScaleFailed;
   std::string message;
-  Sim3 estimate;                           ///< S_target_source
-  Matrix7d covariance = Matrix7d::Zero();  ///< similarity_fit.h convention
+  Sim3 estimate;  ///< S_target_source, the random-effects mean of the used pairs' estimates
+  /**
+   * Covariance of estimate against the local truth at one keyframe pair, such as the anchor
+   * pair the edge is attached to (similarity_fit.h convention): mean_covariance + between, the
+   * predictive covariance of the random-effects model. Each map's scale drift and distortion
+   * make the similarity differ from place to place; between measures by how much.
+   */
+  Matrix7d covariance = Matrix7d::Zero();
+  Matrix7d mean_covariance = Matrix7d::Zero();  ///< of the pooled mean alone (its standard error)
+  /// Between-pair covariance T (DerSimonian-Laird): how much the pairs' own similarities differ
+  /// beyond their noise; zero with one pair.
+  Matrix7d between = Matrix7d::Zero();
   SimilarityFit fit;                       ///< of the pooled matches
   std::vector<PairEvidence> pairs;         ///< every verified pair, in the front end's order
   int anchor = -1;  ///< index in pairs of the edge's anchor pair (used pair with most inlier matches)
   /// The pooled inlier matches (group = index in pairs), for the refinement.
   std::vector<PointMatch3> matches;
   int used_pairs = 0;
-  int dropped_pairs = 0;
+  int dropped_pairs = 0;  ///< set aside as inconsistent with the others
+  int distant_pairs = 0;  ///< set aside as too far along a path from the best pair (merge.local_keyframes)
   double ms = 0.0;
 };
 

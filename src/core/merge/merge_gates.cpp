@@ -2,6 +2,7 @@
 
 #include <Eigen/Cholesky>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -14,6 +15,20 @@ std::string fmt(double v, int precision = 3) {
   os.precision(precision);
   os << v;
   return os.str();
+}
+
+// Where the overlap is measured: the ball around the pooled keyframe matches' target points
+// that holds them all (the surfaces the used keyframe pairs see in common). Each monocular map's
+// scale drifts, so two maps align only where they overlap; over the whole maps the fraction
+// would measure the drift elsewhere (on lsd_slam_7scenes 20-22 % of the whole maps against
+// 50-60 % around the keyframes). Whole maps when there are no matches.
+OverlapRegion matchRegion(const std::vector<PointMatch3>& matches) {
+  OverlapRegion region;
+  if (matches.size() < 3) return region;
+  for (const PointMatch3& m : matches) region.centre += m.target;
+  region.centre /= static_cast<double>(matches.size());
+  for (const PointMatch3& m : matches) region.radius = std::max(region.radius, (m.target - region.centre).norm());
+  return region;
 }
 
 }  // namespace
@@ -51,12 +66,15 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
   }
   if (v.refinement_kept) {
     v.estimate = refinement.estimate;
-    v.covariance = refinement.covariance * std::max(1.0, v.refinement_chi2 / 7.0);
+    // The refinement also estimates the similarity of a region of the maps; the edge is attached
+    // to one keyframe pair, where the similarity differs from the region's by the between-pair
+    // spread (each map's scale drift), as for the keyframe estimate.
+    v.covariance = refinement.covariance * std::max(1.0, v.refinement_chi2 / 7.0) + keyframes.between;
   } else {
     v.estimate = keyframes.estimate;
     v.covariance = keyframes.covariance;
   }
-  v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor);
+  v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor, matchRegion(keyframes.matches));
   const std::string kept = v.refinement_kept ? "refined estimate" : "keyframe estimate kept: " + why;
   if (v.overlap < options_.min_overlap) {
     v.status = Status::kNoOverlap;
