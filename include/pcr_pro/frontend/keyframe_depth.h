@@ -117,7 +117,7 @@ class KeyframeDepth {
    * @param[in] v row coordinate [px]
    * @param[out] sample depth and stddev [camera units]; may be null
    * @return false as depthAt(); with per-pixel uncertainty also when the pixels within 3 σ of the
-   * median hold less than half of the weight (a depth edge) or the relative standard deviation
+   * median hold no more than half of the weight (a depth edge) or the relative standard deviation
    * exceeds max_relative_stddev
    */
   bool sampleAt(double u, double v, DepthSample* sample) const;

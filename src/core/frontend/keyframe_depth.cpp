@@ -247,7 +247,7 @@ bool KeyframeDepth::sampleAt(double u, double v, DepthSample* sample) const {
     sw += p.w;
     swr += p.w * p.rho;
   }
-  if (!(sw >= 0.5 * total) || !(sw > 0.0)) return false;
+  if (!(sw > 0.5 * total)) return false;
   const double mean = swr / sw;
   double swv = 0.0;
   for (const Pixel& p : pixels) {
