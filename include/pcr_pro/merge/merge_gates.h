@@ -41,7 +41,10 @@ class MergeGates {
    * max_icp_rotation_correction_deg and changes its scale by at most max_scale_disagreement; its
    * covariance is then scaled by max(1, χ² / 7), the disagreement of two independent estimates,
    * plus the keyframe pairs' between-pair covariance (KeyframeEstimate::between: the edge is
-   * attached to one keyframe pair, where the local similarity differs from the region's).
+   * attached to one keyframe pair, where the local similarity differs from the region's) and
+   * d dᵀ, d the move from the keyframe estimate to the refined one (the keyframe evidence
+   * measures the anchor pair's surroundings; against their local similarity the move is a
+   * possible error). On maps without drift this is conservative.
    * Otherwise the keyframe estimate and its covariance are reported, with why in the message.
    * The reported estimate must then overlap the target by min_overlap (MapRegistration::overlap()),
    * measured in the ball that holds the pooled keyframe matches (where the maps overlap: each
