@@ -26,6 +26,17 @@ struct OverlapRegion {
   double radius = 0.0;                               ///< [target units]; 0 = the whole maps
 };
 
+/**
+ * @brief Where the maps overlap: the ball around the keyframe matches' target points that holds
+ * them all (the surfaces the used keyframe pairs see in common). Each monocular map's scale
+ * drifts, so two maps align only where they overlap; over the whole maps the overlap fraction
+ * would measure the drift elsewhere (on lsd_slam_7scenes 20-22 % of the whole maps against
+ * 36-42 % in this ball).
+ * @param[in] matches keyframe matches (target points in the target frame)
+ * @return the ball [target units]; radius 0 (the whole maps) with fewer than 3 matches
+ */
+OverlapRegion overlapRegion(const std::vector<PointMatch3>& matches);
+
 /// Outcome of MapRegistration::refine().
 struct Refinement {
   Status status = Status::kIcpNotConverged;  ///< kOk, kDegenerate or kIcpNotConverged

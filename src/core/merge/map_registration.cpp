@@ -59,6 +59,15 @@ double coveredFraction(const Cloud& points, const Sim3& map, const KdTree& tree,
 
 }  // namespace
 
+OverlapRegion overlapRegion(const std::vector<PointMatch3>& matches) {
+  OverlapRegion region;
+  if (matches.size() < 3) return region;
+  for (const PointMatch3& m : matches) region.centre += m.target;
+  region.centre /= static_cast<double>(matches.size());
+  for (const PointMatch3& m : matches) region.radius = std::max(region.radius, (m.target - region.centre).norm());
+  return region;
+}
+
 MapRegistration::MapRegistration(const RegistrationOptions& options, bool estimate_scale)
     : options_(options), estimate_scale_(estimate_scale) {
   validate(options_);

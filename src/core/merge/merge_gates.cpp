@@ -17,20 +17,6 @@ std::string fmt(double v, int precision = 3) {
   return os.str();
 }
 
-// Where the overlap is measured: the ball around the pooled keyframe matches' target points
-// that holds them all (the surfaces the used keyframe pairs see in common). Each monocular map's
-// scale drifts, so two maps align only where they overlap; over the whole maps the fraction
-// would measure the drift elsewhere (on lsd_slam_7scenes 20-22 % of the whole maps against
-// 36-42 % around the keyframes). Whole maps when there are no matches.
-OverlapRegion matchRegion(const std::vector<PointMatch3>& matches) {
-  OverlapRegion region;
-  if (matches.size() < 3) return region;
-  for (const PointMatch3& m : matches) region.centre += m.target;
-  region.centre /= static_cast<double>(matches.size());
-  for (const PointMatch3& m : matches) region.radius = std::max(region.radius, (m.target - region.centre).norm());
-  return region;
-}
-
 }  // namespace
 
 MergeGates::MergeGates(const MergeGateOptions& options) : options_(options) { validate(options_); }
@@ -79,7 +65,7 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
     v.estimate = keyframes.estimate;
     v.covariance = keyframes.covariance;
   }
-  v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor, matchRegion(keyframes.matches));
+  v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor, overlapRegion(keyframes.matches));
   const std::string kept = v.refinement_kept ? "refined estimate" : "keyframe estimate kept: " + why;
   if (v.overlap < options_.min_overlap) {
     v.status = Status::kNoOverlap;
