@@ -86,6 +86,16 @@ TEST(Merge, GivenKeyframesAreUsed) {
   EXPECT_EQ(r.report.source_keyframe.value_or(-1), 3);
   EXPECT_EQ(r.report.target_keyframe.value_or(-1), 2);
   EXPECT_EQ(r.diagnostics.candidate_pairs, 1);
+  // The edge between the two keyframes: pose_target^-1 * S_target_source * pose_source.
+  ASSERT_TRUE(r.report.keyframe_edge);
+  EXPECT_EQ(r.report.keyframe_edge->source_keyframe, 3);
+  EXPECT_EQ(r.report.keyframe_edge->target_keyframe, 2);
+  const AgentMap s = loadBundle(dir + "/agent_b"), t = loadBundle(dir + "/agent_a");
+  Sim3 ps, pt;
+  for (const MapKeyframe& kf : s.keyframes) ps = kf.id == 3 ? kf.pose : ps;
+  for (const MapKeyframe& kf : t.keyframes) pt = kf.id == 2 ? kf.pose : pt;
+  const Sim3 edge = pt.inverse() * *r.report.transform * ps;
+  EXPECT_LT((r.report.keyframe_edge->transform.matrix() - edge.matrix()).cwiseAbs().maxCoeff(), 1e-9 * edge.matrix().norm());
   const Errors e = errors(*r.report.transform, loadBundleTruth(dir + "/truth.yaml").target_source);
   EXPECT_LT(e.rotation_deg, kRotationTolDeg);
   EXPECT_LT(e.scale_rel, kScaleTol);

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <limits>
 #include <sstream>
+#include <utility>
 
 namespace pcr_pro {
 namespace {
@@ -15,6 +16,28 @@ std::string fmt(double v, int precision = 3) {
   os.precision(precision);
   os << v;
   return os.str();
+}
+
+// RMS distance [target units] between where two similarities put the pooled keyframe matches'
+// source points.
+double moveOfMatches(const std::vector<PointMatch3>& matches, const Sim3& a, const Sim3& b) {
+  double sum = 0.0;
+  for (const PointMatch3& m : matches) sum += (a.apply(m.source) - b.apply(m.source)).squaredNorm();
+  return matches.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(matches.size()));
+}
+
+// How far the refinement moves the keyframe matches from the keyframe estimate, and the farthest
+// any used pair's own estimate moves them. The refinement and the pooled keyframe estimate both
+// describe the overlap as a whole; a refinement beyond every pair's own similarity is not
+// supported by any of them (on the real LSD-SLAM maps, whose drifting semi-dense clouds the ICP
+// does not register, it converged in some runs 10 deg away from the keyframe estimate, twice the
+// farthest pair, with a keyframe covariance wide enough for the chi-square test to pass it).
+std::pair<double, double> pairSpread(const KeyframeEstimate& keyframes, const Sim3& refined) {
+  double spread = 0.0;
+  for (const PairEvidence& e : keyframes.pairs) {
+    if (e.used) spread = std::max(spread, moveOfMatches(keyframes.matches, e.estimate, keyframes.estimate));
+  }
+  return {moveOfMatches(keyframes.matches, refined, keyframes.estimate), spread};
 }
 
 }  // namespace
@@ -38,6 +61,9 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
       why = "the refinement disagrees with the keyframe matches (squared Mahalanobis distance " +
             fmt(v.refinement_chi2) + " > merge.refinement_agreement_chi2 " + fmt(options_.refinement_agreement_chi2) +
             ")";
+    } else if (const auto [moved, spread] = pairSpread(keyframes, refinement.estimate); moved > spread) {
+      why = "the refinement moved the keyframe matches by " + fmt(moved) +
+            " target units (RMS), farther than any used keyframe pair's own estimate does (" + fmt(spread) + ")";
     } else if (v.rotation_correction_deg > options_.max_icp_rotation_correction_deg) {
       why = "the refinement rotated the keyframe estimate by " + fmt(v.rotation_correction_deg) +
             " deg > merge.max_icp_rotation_correction_deg " + fmt(options_.max_icp_rotation_correction_deg);
