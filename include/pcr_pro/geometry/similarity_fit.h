@@ -89,6 +89,14 @@ Eigen::Matrix<double, 3, 7> similarityJacobian(const Eigen::Vector3d& y);
  */
 Eigen::Matrix<double, 7, 1> similarityDifference(const Sim3& a, const Sim3& b);
 
+/**
+ * @brief The adjoint of a similarity G in this convention: G · exp(δ) · G⁻¹ = exp(Ad_G δ), so a
+ * covariance C of δ about Ŝ becomes Ad_G C Ad_Gᵀ about G Ŝ G⁻¹ (e.g. moved from the target map's
+ * frame into a keyframe's, about P⁻¹ Ŝ with G = P⁻¹). With G = (s, R, t):
+ * Ad_G = [[sR, [t]x R, -t], [0, R, 0], [0, 0, 1]].
+ */
+Matrix7d similarityAdjoint(const Sim3& g);
+
 /// @return exp(δ) · s (the update of the file comment's convention)
 Sim3 applyDelta(const Eigen::Matrix<double, 7, 1>& delta, const Sim3& s);
 
