@@ -127,18 +127,6 @@ Sim3 applyDelta(const Eigen::Matrix<double, 7, 1>& delta, const Sim3& s) {
   return step * s;
 }
 
-Matrix7d similarityAdjoint(const Sim3& s) {
-  Matrix7d ad = Matrix7d::Zero();
-  const Eigen::Matrix3d& r = s.rotation();
-  const Eigen::Vector3d& t = s.translation();
-  ad.block<3, 3>(0, 0) = s.scale() * r;
-  ad.block<3, 3>(0, 3) = skew(t) * r;
-  ad.block<3, 1>(0, 6) = -t;
-  ad.block<3, 3>(3, 3) = r;
-  ad(6, 6) = 1.0;
-  return ad;
-}
-
 Matrix7d coveringCovariance(const Matrix7d& a, const Matrix7d& b, double* factor) {
   const int d = (a(6, 6) == 0.0 && b(6, 6) == 0.0) ? 6 : 7;
   const Eigen::MatrixXd ab = 0.5 * (a.topLeftCorner(d, d) + a.topLeftCorner(d, d).transpose());
