@@ -302,6 +302,17 @@ TEST(SimulatedLsdSlam, DriftingMapsMergeToTheAnchorPairsLocalTruth) {
   std::printf("simulated (drift %.0f %%, bend %.1f deg): rotation %.3f deg, scale %+.3f %% from the anchor pair's "
               "local truth; NEES 6-DoF %.1f, scale %.2f\n",
               100 * drift, bend, deg(d.segment<3>(3).norm()), 100 * (std::exp(d(6)) - 1.0), nees6, nees_scale);
+  std::printf("  error d = [%s], reported stddev [%s]; refinement %s (chi2 %.1f), %d pair(s) used\n",
+              [&] { std::string o; for (int k = 0; k < 7; ++k) o += std::to_string(d(k)) + " "; return o; }().c_str(),
+              [&] { std::string o; for (int k = 0; k < 7; ++k) o += std::to_string(std::sqrt(c(k, k))) + " "; return o; }().c_str(),
+              r.diagnostics.refinement_kept ? "kept" : "not kept", r.diagnostics.refinement_chi2, r.diagnostics.used_pairs);
+  {
+    const Vector7d dk = similarityDifference(r.diagnostics.initial, local);
+    const Matrix7d& ck = r.diagnostics.keyframe_covariance;
+    std::printf("  keyframe estimate: rotation %.3f deg, scale %+.3f %%, NEES 6-DoF %.1f, scale %.2f\n",
+                deg(dk.segment<3>(3).norm()), 100 * (std::exp(dk(6)) - 1.0),
+                dk.head<6>().dot(ck.topLeftCorner<6, 6>().ldlt().solve(dk.head<6>())), dk(6) * dk(6) / ck(6, 6));
+  }
   // Without drift 0.5 deg / 0.5 % is what the 1 % inverse-depth noise over the ~20 pairs leaves
   // (0.15 deg / 0.13 % measured on two worlds); the drift makes the local similarity vary along
   // the paths by up to half the drift and bend between the anchor and the pairs around it.

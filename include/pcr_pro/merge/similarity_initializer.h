@@ -65,7 +65,9 @@ struct KeyframeEstimate {
   Matrix7d between = Matrix7d::Zero();
   SimilarityFit fit;                       ///< of the pooled matches
   std::vector<PairEvidence> pairs;         ///< every verified pair, in the front end's order
-  int anchor = -1;  ///< index in pairs of the edge's anchor pair (used pair with most inlier matches)
+  /// index in pairs of the edge's anchor pair: of the used pairs with at least half the most pooled
+  /// inlier matches, the one whose own estimate lies closest to `estimate` (see selectPooledMatches)
+  int anchor = -1;
   /// The pooled inlier matches (group = index in pairs), for the refinement.
   std::vector<PointMatch3> matches;
   int used_pairs = 0;
