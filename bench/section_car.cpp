@@ -50,8 +50,8 @@ std::vector<Row> carRuns(const Cloud& source0, const Cloud& target, const Sim3& 
     rows.push_back(r);
   }
   // PCL's rigid refiners from identity: the scans are consecutive (the truth is close to identity),
-  // so they apply at s = 1; at other s they cannot find the scale (run once to show it: 0 %, and
-  // 10-20 s each).
+  // so they apply at s = 1; at other s they cannot find the scale and
+  // take 10-20 s each, so they are not run there).
   const auto names = pclMethods();
   for (int k = 0; k < static_cast<int>(names.size()) && s == 1.0; ++k) {
     Row r = fromPeer(runPcl(k, source, target, pp), truth, extent);
