@@ -21,20 +21,25 @@ pcl::PointCloud<pcl::PointXYZ>::Ptr toPcl(const Cloud& c) {
   return out;
 }
 
+// Runs a rigid PCL registration of `start`'s scale applied to the source, from start's rigid
+// part; the result keeps start's scale.
 template <class Reg>
-PeerResult runReg(Reg& reg, const Cloud& source, const Cloud& target) {
+PeerResult runReg(Reg& reg, const Cloud& source, const Cloud& target, const Sim3& start) {
   PeerResult r;
-  const auto src = toPcl(source), tgt = toPcl(target);
+  const auto src = toPcl(start.scale() * source), tgt = toPcl(target);
+  Eigen::Matrix4f guess = Eigen::Matrix4f::Identity();
+  guess.topLeftCorner<3, 3>() = start.rotation().cast<float>();
+  guess.topRightCorner<3, 1>() = start.translation().cast<float>();
   const double t0 = nowMs();
   reg.setInputSource(src);
   reg.setInputTarget(tgt);
   pcl::PointCloud<pcl::PointXYZ> aligned;
-  reg.align(aligned);
+  reg.align(aligned, guess);
   r.ms = nowMs() - t0;
   const Eigen::Matrix4d m = reg.getFinalTransformation().template cast<double>();
-  if (m.allFinite()) {
+  if (m.allFinite() && reg.hasConverged()) {
     try {
-      r.transform = Sim3::fromMatrix(m);
+      r.transform = Sim3::fromMatrix(m) * Sim3(start.scale(), Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero());
       r.ran = true;
     } catch (const std::exception&) {
       r.ran = false;
@@ -51,29 +56,32 @@ std::vector<std::string> pclMethods() {
   return {"PCL IterativeClosestPoint", "PCL GeneralizedIterativeClosestPoint", "PCL NormalDistributionsTransform"};
 }
 
-PeerResult runPcl(int index, const Cloud& source, const Cloud& target, const PeerParams& p) {
-  // Thresholds as a user would set them without knowing the answer: relative to the target size.
-  const double max_corr = 0.1 * p.target_size;
+PeerResult runPcl(int index, const Cloud& source, const Cloud& target, const PeerParams& p, const Sim3& start) {
+  // Thresholds as a user refining a start would set them without knowing the answer, relative to
+  // the target size: a correspondence gate of 3 % of the map, wider than the start's expected error
+  // (the keyframe estimate is within a few % of the extent) and narrower than the parts of a
+  // partially overlapping map that have no counterpart.
+  const double max_corr = 0.03 * p.target_size;
   if (index == 0) {
     pcl::IterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ> icp;
     icp.setMaxCorrespondenceDistance(max_corr);
     icp.setMaximumIterations(100);
     icp.setTransformationEpsilon(1e-10);
-    return runReg(icp, source, target);
+    return runReg(icp, source, target, start);
   }
   if (index == 1) {
     pcl::GeneralizedIterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ> gicp;
     gicp.setMaxCorrespondenceDistance(max_corr);
     gicp.setMaximumIterations(100);
     gicp.setTransformationEpsilon(1e-10);
-    return runReg(gicp, source, target);
+    return runReg(gicp, source, target, start);
   }
   pcl::NormalDistributionsTransform<pcl::PointXYZ, pcl::PointXYZ> ndt;
   ndt.setResolution(static_cast<float>(p.target_size / 20.0));
   ndt.setStepSize(0.05 * p.target_size);
   ndt.setTransformationEpsilon(1e-6 * p.target_size);
   ndt.setMaximumIterations(100);
-  return runReg(ndt, source, target);
+  return runReg(ndt, source, target, start);
 }
 
 }  // namespace bench

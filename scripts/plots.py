@@ -113,7 +113,7 @@ def nees_hist(nees, out):
     sizes = sorted({int(r["points"]) for r in nees})
     fig, axes = plt.subplots(1, len(sizes), figsize=(4.5 * len(sizes), 3.8), squeeze=False)
     for ax, n in zip(axes[0], sizes):
-        for model in ("closed_form", "calibrated"):
+        for model in ("closed_form", "calibrated", "blocks"):
             v = [float(r["nees"]) for r in nees if int(r["points"]) == n and r["model"] == model]
             if v:
                 ax.hist(np.clip(v, 0, 60), bins=np.linspace(0, 60, 31), alpha=0.5, density=True,
@@ -129,8 +129,31 @@ def nees_hist(nees, out):
     plt.close(fig)
 
 
+def case_nees(path, out):
+    """NEES of the reported estimates of the real or simulated cases (truth's accuracy added)."""
+    cases = [r for r in rows(path) if r["method"] == "pcr_pro reported" and r["status"] == "OK"]
+    if not cases:
+        return
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+    for ax, key, dof, bound in ((axes[0], "nees6", 6, 12.592), (axes[1], "nees_scale", 1, 3.841)):
+        v = np.array([float(r[key]) for r in cases])
+        ax.hist(np.clip(v, 0, 5 * bound), bins=np.linspace(0, 5 * bound, 31), alpha=0.6,
+                label="reported (ANEES %.2f)" % (np.mean(v) / dof))
+        ax.axvline(bound, color="k", lw=1, ls="--", label="χ²(%d) 95 %%" % dof)
+        ax.set_xlabel("NEES (%s)" % ("6-DoF" if dof == 6 else "scale"))
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
 def main():
     d = sys.argv[1]
+    for name in ("real_cases", "simulated"):
+        if os.path.exists(os.path.join(d, name + ".csv")):
+            case_nees(os.path.join(d, name + ".csv"), os.path.join(d, name + "_nees.png"))
+    if not os.path.exists(os.path.join(d, "sweep.csv")):
+        return
     sweep = rows(os.path.join(d, "sweep.csv"))
     success_vs(sweep, "ratio", "scale ratio of S_target_source", os.path.join(d, "success_vs_scale.png"), logx=True)
     success_vs([r for r in sweep if r["variant"] != "clouds"], "roll_deg", "keyframe roll [deg]",
@@ -139,9 +162,11 @@ def main():
                logx=True)
     error_cdfs(sweep, os.path.join(d, "error_cdf.png"))
     peers_path = os.path.join(d, "timing_peers.csv")
-    time_vs_points(rows(os.path.join(d, "timing.csv")), rows(peers_path) if os.path.exists(peers_path) else [],
-                   os.path.join(d, "time_vs_points.png"))
-    nees_hist(rows(os.path.join(d, "nees.csv")), os.path.join(d, "nees_hist.png"))
+    if os.path.exists(os.path.join(d, "timing.csv")):
+        time_vs_points(rows(os.path.join(d, "timing.csv")), rows(peers_path) if os.path.exists(peers_path) else [],
+                       os.path.join(d, "time_vs_points.png"))
+    if os.path.exists(os.path.join(d, "nees.csv")):
+        nees_hist(rows(os.path.join(d, "nees.csv")), os.path.join(d, "nees_hist.png"))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,293 @@
+#include "case_results.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "bench_common.h"
+#include "suite.h"
+
+namespace pcr_pro {
+namespace bench {
+namespace {
+
+// The scores of our three estimates.
+void scoreOurs(const MergeResult& r, const CaseInput& in, const Matrix7d& truth_cov, const Eigen::Vector3d& centroid,
+               double extent, CaseResult& out) {
+  const MergeDiagnostics& d = r.diagnostics;
+  if (d.used_pairs > 0) out.keyframe = score(d.initial, d.keyframe_covariance, in.truth, truth_cov, centroid, extent);
+  if (d.refinement_status == Status::kOk) {
+    out.refined = score(d.refined, d.refined_covariance, in.truth, truth_cov, centroid, extent);
+  }
+  if (r.report.status == Status::kOk && r.report.transform) {
+    out.reported = score(*r.report.transform, d.covariance, in.truth, truth_cov, centroid, extent);
+  }
+}
+
+std::vector<PeerRun> runOpen3dSettings(const CaseInput& in, const std::vector<int>& which,
+                                       const Eigen::Vector3d& centroid, double extent) {
+  std::vector<PeerRun> runs;
+  PeerParams pp;
+  pp.target_size = extent;
+  pp.source_size = boxDiagonal(in.source->cloud);
+  for (std::size_t k = 0; k < open3dSettings().size(); ++k) {
+    PeerRun run;
+    if (!which.empty() && std::find(which.begin(), which.end(), static_cast<int>(k)) == which.end()) {
+      runs.push_back(run);
+      continue;
+    }
+    const PeerResult p = runOpen3d(in.source->cloud, in.target->cloud, pp, open3dSettings()[k]);
+    run.tried = true;
+    run.ran = p.ran;
+    run.ms = p.ms;
+    if (p.ran) run.score = score(p.transform, Matrix7d::Zero(), in.truth, Matrix7d::Zero(), centroid, extent);
+    runs.push_back(run);
+  }
+  return runs;
+}
+
+std::vector<PeerRun> runPclFrom(const CaseInput& in, const Sim3& start, const Eigen::Vector3d& centroid, double extent,
+                                int max_points) {
+  std::vector<PeerRun> runs;
+  const Cloud source = capped(in.source->cloud, max_points), target = capped(in.target->cloud, max_points);
+  PeerParams pp;
+  pp.target_size = extent;
+  pp.source_size = boxDiagonal(source);
+  for (std::size_t k = 0; k < pclMethods().size(); ++k) {
+    const PeerResult p = runPcl(static_cast<int>(k), source, target, pp, start);
+    PeerRun run;
+    run.ran = p.ran;
+    run.ms = p.ms;
+    if (p.ran) run.score = score(p.transform, Matrix7d::Zero(), in.truth, Matrix7d::Zero(), centroid, extent);
+    runs.push_back(run);
+  }
+  return runs;
+}
+
+std::string scoreCells(const Score& s) {
+  if (!s.has) return "–";
+  return fmt(s.rotation_deg, 2) + " / " + fmt(s.translation_pct, 2) + " / " + fmt(s.scale_pct, 2);
+}
+
+}  // namespace
+
+CaseResult runCase(const CaseInput& in, const CaseRunOptions& options,
+                   std::map<std::string, std::vector<PeerRun>>& peer_cache) {
+  CaseResult out;
+  out.name = in.name;
+  out.family = in.family;
+  out.cell = in.cell;
+  out.overlap = in.overlap;
+  const double extent = boxDiagonal(in.target->cloud);
+  const Eigen::Vector3d centroid = in.source->cloud.rowwise().mean();
+  TruthAccuracy accuracy = in.accuracy;
+  accuracy.centre = in.truth.apply(centroid);
+  const Matrix7d truth_cov = truthCovariance(accuracy);
+  MergePipeline fresh{MergeOptions()};
+  MergePipeline& pipeline = in.pipeline ? *in.pipeline : fresh;
+  const double t0 = nowMs();
+  const MergeResult r = pipeline.merge(*in.source, *in.target, MergeRequest(), "agent_b", "agent_a");
+  out.ms = nowMs() - t0;
+  out.status = statusName(r.report.status);
+  out.refinement_kept = r.diagnostics.refinement_kept;
+  out.used_pairs = r.diagnostics.used_pairs;
+  scoreOurs(r, in, truth_cov, centroid, extent, out);
+  if (options.peers && haveOpen3d()) {
+    auto it = peer_cache.find(in.clouds_key);
+    if (in.clouds_key.empty() || it == peer_cache.end()) {
+      out.open3d = runOpen3dSettings(in, options.open3d_settings, centroid, extent);
+      if (!in.clouds_key.empty()) peer_cache[in.clouds_key] = out.open3d;
+    } else {
+      out.open3d = it->second;
+    }
+  }
+  if (options.pcl && r.diagnostics.used_pairs > 0) {
+    out.pcl = runPclFrom(in, r.diagnostics.initial, centroid, extent, options.pcl_max_points);
+  }
+  std::fprintf(stderr, "case %s: %s (%.0f ms)%s\n", in.name.c_str(), out.status.c_str(), out.ms,
+               out.reported.has ? (out.reported.within_floors ? " within floors" : " outside floors") : "");
+  return out;
+}
+
+int bestOpen3dSetting(const std::vector<CaseResult>& results, const std::string& family) {
+  int best = 0, best_ok = -1;
+  double best_rot = 1e300;
+  for (std::size_t k = 0; k < open3dSettings().size(); ++k) {
+    int ok = 0;
+    std::vector<double> rot;
+    for (const CaseResult& c : results) {
+      if (c.family != family || !c.overlap || c.open3d.size() <= k || !c.open3d[k].tried) continue;
+      const PeerRun& p = c.open3d[k];
+      ok += p.ran && p.score.within_floors;
+      rot.push_back(p.ran ? p.score.rotation_deg : 180.0);
+    }
+    const double m = median(rot);
+    if (ok > best_ok || (ok == best_ok && m < best_rot)) {
+      best = static_cast<int>(k);
+      best_ok = ok;
+      best_rot = m;
+    }
+  }
+  return best;
+}
+
+Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::string, int>& best_setting) {
+  Aggregate a;
+  a.pcl_success.assign(pclMethods().size(), 0);
+  std::vector<Score> rep, kf, ref;
+  std::vector<double> ms, o3d_ms;
+  for (const CaseResult& c : results) {
+    ms.push_back(c.ms);
+    const auto b = best_setting.find(c.family);
+    const PeerRun* o3d = b != best_setting.end() && static_cast<std::size_t>(b->second) < c.open3d.size() &&
+                                 c.open3d[static_cast<std::size_t>(b->second)].tried
+                             ? &c.open3d[static_cast<std::size_t>(b->second)]
+                             : nullptr;
+    if (o3d) o3d_ms.push_back(o3d->ms);
+    if (!c.overlap) {
+      ++a.apart;
+      a.false_merges += c.status == "OK";
+      if (o3d) {
+        ++a.open3d_apart_ran;
+        a.open3d_false += o3d->ran;
+      }
+      continue;
+    }
+    ++a.overlapping;
+    a.merged += c.reported.has;
+    a.success += c.reported.has && c.reported.within_floors;
+    a.keyframe_success += c.keyframe.has && c.keyframe.within_floors;
+    a.refined_success += c.refined.has && c.refined.within_floors;
+    if (o3d) a.open3d_success += o3d->ran && o3d->score.within_floors;
+    for (std::size_t k = 0; k < c.pcl.size(); ++k) a.pcl_success[k] += c.pcl[k].ran && c.pcl[k].score.within_floors;
+    if (c.reported.has) rep.push_back(c.reported);
+    if (c.keyframe.has) kf.push_back(c.keyframe);
+    if (c.refined.has) ref.push_back(c.refined);
+  }
+  a.nees = pool(rep);
+  a.nees_keyframe = pool(kf);
+  a.nees_refined = pool(ref);
+  a.median_ms = median(ms);
+  a.median_open3d_ms = o3d_ms.empty() ? 0.0 : median(o3d_ms);
+  return a;
+}
+
+void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results) {
+  std::fprintf(f, "case,overlap,method,status,rotation_deg,translation_pct,scale_pct,within_floors,nees_rot,nees6,"
+                  "nees_scale,raw_nees_rot,raw_nees6,raw_nees_scale,ms\n");
+  const auto line = [f](const CaseResult& c, const std::string& method, const std::string& status, const Score& s,
+                        double ms) {
+    std::fprintf(f, "%s,%d,%s,%s,%.5g,%.5g,%.5g,%d,%.5g,%.5g,%.5g,%.5g,%.5g,%.5g,%.1f\n", c.name.c_str(), c.overlap ? 1 : 0,
+                 method.c_str(), status.c_str(), s.rotation_deg, s.translation_pct, s.scale_pct, s.within_floors ? 1 : 0,
+                 s.nees_rot, s.nees6, s.nees_scale, s.raw_rot, s.raw6, s.raw_scale, ms);
+  };
+  for (const CaseResult& c : results) {
+    line(c, "pcr_pro reported", c.status, c.reported, c.ms);
+    line(c, "pcr_pro keyframe-only", c.keyframe.has ? "ESTIMATE" : "NONE", c.keyframe, 0.0);
+    line(c, "pcr_pro refined", c.refined.has ? "ESTIMATE" : "NONE", c.refined, 0.0);
+    for (std::size_t k = 0; k < c.open3d.size(); ++k) {
+      if (!c.open3d[k].tried) continue;
+      line(c, "Open3D " + open3dSettings()[k].name(), c.open3d[k].ran ? "RAN" : "FAILED", c.open3d[k].score,
+           c.open3d[k].ms);
+    }
+    for (std::size_t k = 0; k < c.pcl.size(); ++k) {
+      line(c, pclMethods()[k] + " from keyframe estimate", c.pcl[k].ran ? "RAN" : "FAILED", c.pcl[k].score, c.pcl[k].ms);
+    }
+  }
+}
+
+void writeCaseTable(std::FILE* md, const std::vector<CaseResult>& results, const std::map<std::string, int>& best) {
+  std::fprintf(md, "| case | status | keyframe-only: rot [deg] / trans [%% ext.] / scale [%%] | reported: rot / trans / "
+                   "scale | refinement kept | NEES rot / 6-DoF / scale (reported) | floors | Open3D best: rot / trans "
+                   "/ scale | time ours / Open3D [ms] |\n|---|---|---|---|---|---|---|---|---|\n");
+  for (const CaseResult& c : results) {
+    const auto b = best.find(c.family);
+    const PeerRun* o3d = b != best.end() && static_cast<std::size_t>(b->second) < c.open3d.size() &&
+                                 c.open3d[static_cast<std::size_t>(b->second)].tried
+                             ? &c.open3d[static_cast<std::size_t>(b->second)]
+                             : nullptr;
+    const std::string nees = c.reported.has && c.reported.has_covariance
+                                 ? fmt(c.reported.nees_rot, 1) + " / " + fmt(c.reported.nees6, 1) + " / " +
+                                       fmt(c.reported.nees_scale, 1)
+                                 : "–";
+    const std::string floors = !c.overlap ? (c.status == "OK" ? "**false merge**" : "refused (right)")
+                                          : (c.reported.has && c.reported.within_floors ? "yes" : "**no**");
+    std::string peer = "–";
+    if (o3d) {
+      peer = o3d->ran ? (c.overlap ? scoreCells(o3d->score) + (o3d->score.within_floors ? " ✓" : "") : "merged (false)")
+                      : "failed";
+    }
+    std::fprintf(md, "| %s | %s | %s | %s | %s | %s | %s | %s | %.0f / %s |\n", c.name.c_str(), c.status.c_str(),
+                 scoreCells(c.keyframe).c_str(), scoreCells(c.reported).c_str(),
+                 c.reported.has ? (c.refinement_kept ? "yes" : "no") : "–", nees.c_str(), floors.c_str(), peer.c_str(),
+                 c.ms, o3d ? fmt(o3d->ms, 0).c_str() : "–");
+  }
+  std::fprintf(md, "\n");
+}
+
+void writeOpen3dSweep(std::FILE* md, const std::vector<CaseResult>& results, const std::vector<std::string>& families) {
+  std::fprintf(md, "Open3D FPFH + RANSAC + ICP (with scaling), each cloud centred and divided by its own extent "
+                   "before the features; successes within the floors on the overlapping cases per setting (lengths "
+                   "in units of the normalised cloud), median time:\n\n| setting |");
+  for (const std::string& f : families) std::fprintf(md, " %s |", f.c_str());
+  std::fprintf(md, "\n|---|");
+  for (std::size_t i = 0; i < families.size(); ++i) std::fprintf(md, "---|");
+  std::fprintf(md, "\n");
+  for (std::size_t k = 0; k < open3dSettings().size(); ++k) {
+    std::fprintf(md, "| %s |", open3dSettings()[k].name().c_str());
+    for (const std::string& f : families) {
+      int ok = 0, n = 0;
+      std::vector<double> ms;
+      for (const CaseResult& c : results) {
+        if (c.family != f || !c.overlap || c.open3d.size() <= k || !c.open3d[k].tried) continue;
+        ++n;
+        ok += c.open3d[k].ran && c.open3d[k].score.within_floors;
+        ms.push_back(c.open3d[k].ms);
+      }
+      const bool is_best = static_cast<int>(k) == bestOpen3dSetting(results, f);
+      std::fprintf(md, " %s%d / %d, %.0f ms%s |", is_best ? "**" : "", ok, n, ms.empty() ? 0.0 : median(ms),
+                   is_best ? " (best)**" : "");
+    }
+    std::fprintf(md, "\n");
+  }
+  std::fprintf(md, "\n");
+}
+
+void writeAggregateTable(std::FILE* md, const std::vector<CaseResult>& results, const std::map<std::string, int>& best) {
+  std::vector<std::string> cells;
+  for (const CaseResult& c : results) {
+    if (std::find(cells.begin(), cells.end(), c.cell) == cells.end()) cells.push_back(c.cell);
+  }
+  cells.push_back("all");
+  std::fprintf(md, "| cases | within floors: reported / keyframe-only / refined | merged | false merges (of apart) | "
+                   "Open3D best: within floors / false merges |");
+  for (const std::string& m : pclMethods()) std::fprintf(md, " %s from our keyframe estimate |", m.c_str());
+  std::fprintf(md, " ANEES (under 95 %% bound) rot / 6-DoF / scale, reported | the same without the truth's "
+                   "uncertainty (6-DoF / scale) | ANEES 6-DoF / scale keyframe-only; refined | median time ours, "
+                   "Open3D / ours |\n|---|---|---|---|---|");
+  for (std::size_t i = 0; i < pclMethods().size(); ++i) std::fprintf(md, "---|");
+  std::fprintf(md, "---|---|---|---|\n");
+  for (const std::string& cell : cells) {
+    std::vector<CaseResult> sub;
+    for (const CaseResult& c : results) {
+      if (cell == "all" || c.cell == cell) sub.push_back(c);
+    }
+    const Aggregate a = aggregate(sub, best);
+    std::fprintf(md, "| %s%s%s (%d + %d apart) | %d / %d / %d of %d | %d | %d / %d | %d / %d of %d |", cell == "all" ? "**" : "",
+                 cell.c_str(), cell == "all" ? "**" : "", a.overlapping, a.apart, a.success, a.keyframe_success,
+                 a.refined_success, a.overlapping, a.merged, a.false_merges, a.apart, a.open3d_success,
+                 a.open3d_false, a.open3d_apart_ran);
+    for (int s : a.pcl_success) std::fprintf(md, " %d |", s);
+    const NeesPool& n = a.nees;
+    std::fprintf(md, " %s / %s / %s (n = %d) | %s / %s | %s / %s; %s / %s | %.0f ms, %s |\n",
+                 neesCell(n.anees_rot, n.under_rot).c_str(), neesCell(n.anees6, n.under6).c_str(),
+                 neesCell(n.anees_scale, n.under_scale).c_str(), n.n, neesCell(n.raw_anees6, n.raw_under6).c_str(),
+                 neesCell(n.raw_anees_scale, n.raw_under_scale).c_str(), fmt(a.nees_keyframe.anees6, 2).c_str(),
+                 fmt(a.nees_keyframe.anees_scale, 2).c_str(), fmt(a.nees_refined.anees6, 2).c_str(),
+                 fmt(a.nees_refined.anees_scale, 2).c_str(), a.median_ms,
+                 a.median_open3d_ms > 0 ? (fmt(a.median_open3d_ms / a.median_ms, 2) + "×").c_str() : "–");
+  }
+  std::fprintf(md, "\n");
+}
+
+}  // namespace bench
+}  // namespace pcr_pro

@@ -1,0 +1,95 @@
+// One two-agent case run by ours and the peers, and the tables the real-case and simulated
+// sections write from a list of them (per case, aggregate, peers' settings).
+#pragma once
+
+#include <cstdio>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "evaluation.h"
+#include "peers.h"
+#include "pcr_pro/geometry/map_types.h"
+#include "pcr_pro/merge/merge_pipeline.h"
+
+namespace pcr_pro {
+namespace bench {
+
+/// What is known about a case before it is run.
+struct CaseInput {
+  std::string name;    ///< e.g. 7scenes/overlap_250_945/depth
+  std::string family;  ///< peers' settings are chosen per family (e.g. "7-Scenes")
+  std::string cell;    ///< the aggregate group (e.g. "7-Scenes, depth images")
+  bool overlap = true;
+  const AgentMap* source = nullptr;
+  const AgentMap* target = nullptr;
+  Sim3 truth;                ///< S_target_source
+  TruthAccuracy accuracy;    ///< the truth's own uncertainty (zero when exact)
+  std::string clouds_key;    ///< equal for cases whose two map clouds are the same (peers run once)
+  /// The pipeline to merge with (its feature cache kept from an earlier case with the same
+  /// images); null: a fresh one (cold cache).
+  MergePipeline* pipeline = nullptr;
+};
+
+/// A peer's run on a case.
+struct PeerRun {
+  bool tried = false;  ///< the setting was run on this case
+  bool ran = false;
+  Score score;
+  double ms = 0.0;
+};
+
+/// Ours and the peers on one case.
+struct CaseResult {
+  std::string name, family, cell;
+  bool overlap = true;
+  std::string status;
+  double ms = 0.0;             ///< our merge, cold feature cache
+  bool refinement_kept = false;
+  int used_pairs = 0;
+  Score keyframe, refined, reported;   ///< reported.has only with status OK
+  std::vector<PeerRun> open3d;         ///< one per open3dSettings()
+  std::vector<PeerRun> pcl;            ///< one per pclMethods(), from our keyframe estimate
+};
+
+/// Options of runCase().
+struct CaseRunOptions {
+  bool peers = true;       ///< Open3D
+  std::vector<int> open3d_settings;  ///< indices into open3dSettings() to run; empty = all
+  bool pcl = true;         ///< PCL refiners from our keyframe estimate
+  int pcl_max_points = 5000;  ///< clouds capped for the PCL refiners [points]
+};
+
+/**
+ * Runs our merge (input.pipeline, else a fresh one) and the peers on one case. Peers'
+ * results are reused from `peer_cache` for cases with the same clouds_key.
+ */
+CaseResult runCase(const CaseInput& input, const CaseRunOptions& options,
+                   std::map<std::string, std::vector<PeerRun>>& peer_cache);
+
+/// Index into open3dSettings() of the best setting for `family`: most successes on its
+/// overlapping cases, then the smallest median rotation error.
+int bestOpen3dSetting(const std::vector<CaseResult>& results, const std::string& family);
+
+/// Aggregate numbers of a set of cases (ours: reported estimate unless said).
+struct Aggregate {
+  int overlapping = 0, success = 0, keyframe_success = 0, refined_success = 0, merged = 0;
+  int apart = 0, false_merges = 0;
+  int open3d_success = 0, open3d_false = 0, open3d_apart_ran = 0;
+  std::vector<int> pcl_success;
+  NeesPool nees, nees_keyframe, nees_refined;
+  double median_ms = 0.0, median_open3d_ms = 0.0;
+};
+Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::string, int>& best_setting);
+
+/// CSV of every case (ours and each peer).
+void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results);
+/// The per-case Markdown table.
+void writeCaseTable(std::FILE* md, const std::vector<CaseResult>& results, const std::map<std::string, int>& best);
+/// The Open3D settings sweep per family (successes per setting).
+void writeOpen3dSweep(std::FILE* md, const std::vector<CaseResult>& results, const std::vector<std::string>& families);
+/// The aggregate table, one row per cell and one for all.
+void writeAggregateTable(std::FILE* md, const std::vector<CaseResult>& results, const std::map<std::string, int>& best);
+
+}  // namespace bench
+}  // namespace pcr_pro

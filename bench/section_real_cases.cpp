@@ -1,0 +1,156 @@
+// make bench, section "real": every real two-agent case of BUILD/real_cases (7-Scenes with and
+// without depth images, slambook2; docs/FORMATS.md), ours (keyframe-only, refined, reported) and
+// the peers in the same run, judged against each case's truth with the truth's own accuracy.
+#include <yaml-cpp/yaml.h>
+
+#include <memory>
+
+#include "case_results.h"
+#include "common/data_dir.h"
+#include "pcr_pro/io/bundle.h"
+#include "suite.h"
+
+namespace pcr_pro {
+namespace bench {
+namespace {
+
+// A case as index.yaml lists it, with its maps loaded.
+struct RealCase {
+  std::string path, data_set;
+  bool overlap = true, depth_images = true;
+  std::unique_ptr<AgentMap> source, target;
+  BundleTruth truth;
+  TruthAccuracy accuracy;
+};
+
+// truth_accuracy of truth.yaml (FORMATS.md): the totals, each taken as a 1-sigma per axis.
+TruthAccuracy readAccuracy(const std::string& truth_file) {
+  const YAML::Node root = YAML::LoadFile(truth_file);
+  TruthAccuracy a;
+  const YAML::Node acc = root["truth_accuracy"];
+  if (!acc) return a;  // the non-overlapping cases state none: their truth is not used for errors
+  a.rotation = acc["rotation_deg"].as<double>() * M_PI / 180.0;
+  a.translation = acc["translation"].as<double>();
+  a.scale_rel = acc["scale_rel"].as<double>();
+  return a;
+}
+
+std::vector<RealCase> loadCases(bool quick) {
+  const std::string dir = test::realCasesDir();
+  const YAML::Node index = YAML::LoadFile(dir + "/index.yaml");
+  std::vector<RealCase> cases;
+  for (const YAML::Node& e : index["cases"]) {
+    RealCase c;
+    c.path = e["path"].as<std::string>();
+    c.data_set = e["data_set"].as<std::string>();
+    c.overlap = e["overlap"].as<bool>();
+    c.depth_images = e["depth_images"].as<bool>();
+    // --quick: two overlapping 7-Scenes pairs, one apart, and slambook2 with and without overlap.
+    if (quick && c.path != "7scenes/overlap_250_945/depth" && c.path != "7scenes/overlap_460_900/depth" &&
+        c.path != "7scenes/apart_120_420/depth" && c.path != "slambook2/depth" && c.path != "slambook2/nooverlap") {
+      continue;
+    }
+    const std::string case_dir = dir + "/" + c.path;
+    c.truth = loadBundleTruth(case_dir + "/truth.yaml");
+    c.source = std::make_unique<AgentMap>(loadBundle(case_dir + "/" + c.truth.source_agent));
+    c.target = std::make_unique<AgentMap>(loadBundle(case_dir + "/" + c.truth.target_agent));
+    c.accuracy = readAccuracy(case_dir + "/truth.yaml");
+    cases.push_back(std::move(c));
+  }
+  return cases;
+}
+
+std::string familyOf(const RealCase& c) { return c.data_set == "7scenes_redkitchen" ? "7-Scenes" : "slambook2"; }
+
+std::string cellOf(const RealCase& c) {
+  if (c.data_set != "7scenes_redkitchen") return "slambook2";
+  return c.depth_images ? "7-Scenes, depth images" : "7-Scenes, no depth images";
+}
+
+// The cases' directory without its last component: depth/ and nodepth/ of one pair share their
+// clouds (the peers see only clouds). slambook2's sharedworld and nooverlap have their own.
+std::string cloudsKey(const RealCase& c) {
+  const std::string parent = c.path.substr(0, c.path.rfind('/'));
+  const std::string last = c.path.substr(c.path.rfind('/') + 1);
+  return last == "depth" || last == "nodepth" ? parent : c.path;
+}
+
+void writeReal(Output& out, const std::vector<CaseResult>& results, const std::map<std::string, int>& best,
+               std::FILE* headline) {
+  std::FILE* csv = out.open("real_cases.csv");
+  writeCaseCsv(csv, results);
+  std::fclose(csv);
+  std::FILE* md = out.open("real_cases.md");
+  std::fprintf(md, "Every case of `BUILD/real_cases` (docs/FORMATS.md), default configuration, one merge each with "
+                   "a cold feature cache. Errors against the case's `truth.yaml`: rotation [deg]; translation = "
+                   "distance between where the estimate and the truth put the source cloud's centroid, in %% of the "
+                   "target map's extent (diagonal of its 5–95 %% box); scale = estimate / truth − 1 [%%]. Floors "
+                   "(issue 12): 1° / 2 %% / 1.5 %%. **NEES** of the reported estimate under its 7×7 covariance "
+                   "(rotation: 3 DoF, 6-DoF: x y z rx ry rz, scale: 1 DoF) **plus the truth's own accuracy** "
+                   "(`truth_accuracy` of each truth.yaml: rotation, translation and relative scale, each taken as "
+                   "a 1-σ per axis about the overlap — the source centroid where the truth puts it — and moved to "
+                   "the target origin of the merge's convention). The truth is that uncertain: the 7-Scenes poses "
+                   "disagree with the colour images by 0.5–3° (docs/real_cases_baseline.md), and `scale_rel` holds "
+                   "each map's scale spread over the overlap. ANEES = mean NEES / DoF (1 = consistent, > 1 "
+                   "over-confident); in parentheses the fraction under the χ² 95 %% bound (7.81 / 12.59 / 3.84).\n\n");
+  writeAggregateTable(md, results, best);
+  std::fprintf(md, "Per case (Open3D with its best setting for the family, below):\n\n");
+  writeCaseTable(md, results, best);
+  writeOpen3dSweep(md, results, {"7-Scenes", "slambook2"});
+  std::fprintf(md, "PCL's ICP / GICP / NDT are rigid: from identity they never found these maps (scales 0.1–10 "
+                   "apart), so they start from our keyframe-only estimate (its scale applied to the source, clouds "
+                   "capped at 5k points, correspondence gate 3 %% of the target extent) and refine rotation and "
+                   "translation: they show whether a standard refiner would do better than ours from the same start. "
+                   "They have no start where we refuse, so they make no merge on the apart cases. Open3D always "
+                   "returns a transform: on an apart case that is a false merge.\n\n");
+  std::fclose(md);
+  const Aggregate a = aggregate(results, best);
+  const NeesPool& n = a.nees;
+  std::fprintf(headline,
+               "- **Real cases** (%d overlapping, %d apart; 7-Scenes with and without depth images, slambook2): "
+               "**%d / %d** within the floors (1° / 2 %% extent / 1.5 %% scale; keyframe-only %d, refined %d), "
+               "%d merged; false merges %d / %d. Floor (every overlapping case, no false merge): **%s**. "
+               "ANEES reported (truth's accuracy added) rotation %s, 6-DoF %s, scale %s; floors (ANEES in "
+               "[0.7, 1.5], ≥ 90 %% under the bound): **%s**. Open3D (best setting per family): %d / %d, false "
+               "merges %d / %d, median time %.2f× ours.\n",
+               a.overlapping, a.apart, a.success, a.overlapping, a.keyframe_success, a.refined_success, a.merged,
+               a.false_merges, a.apart, a.success == a.overlapping && a.false_merges == 0 ? "met" : "NOT met",
+               neesCell(n.anees_rot, n.under_rot).c_str(), neesCell(n.anees6, n.under6).c_str(),
+               neesCell(n.anees_scale, n.under_scale).c_str(), neesFloorsMet(n) ? "met" : "NOT met", a.open3d_success,
+               a.overlapping, a.open3d_false, a.open3d_apart_ran, a.median_ms > 0 ? a.median_open3d_ms / a.median_ms : 0.0);
+}
+
+}  // namespace
+
+void sectionRealCases(Output& out, const SuiteConfig& config, std::FILE* headline) {
+  if (const auto missing = test::missingRealCase("index.yaml")) {
+    std::FILE* md = out.open("real_cases.md");
+    std::fprintf(md, "Skipped: %s.\n\n", missing->c_str());
+    std::fclose(md);
+    std::fprintf(headline, "- Real cases: skipped (%s).\n", missing->c_str());
+    return;
+  }
+  const std::vector<RealCase> cases = loadCases(config.quick);
+  std::vector<CaseResult> results;
+  std::map<std::string, std::vector<PeerRun>> peer_cache;
+  CaseRunOptions options;
+  for (const RealCase& c : cases) {
+    CaseInput in;
+    in.name = c.path;
+    in.family = familyOf(c);
+    in.cell = cellOf(c);
+    in.overlap = c.overlap;
+    in.source = c.source.get();
+    in.target = c.target.get();
+    in.truth = c.truth.target_source;
+    in.accuracy = c.accuracy;
+    in.clouds_key = cloudsKey(c);
+    results.push_back(runCase(in, options, peer_cache));
+  }
+  std::map<std::string, int> best;
+  for (const std::string f : {"7-Scenes", "slambook2"}) best[f] = bestOpen3dSetting(results, f);
+  writeReal(out, results, best, headline);
+}
+
+}  // namespace bench
+}  // namespace pcr_pro
