@@ -33,7 +33,9 @@ using namespace pcr_pro::bench;
 
 namespace {
 
-const std::string kData = PCR_PRO_TEST_DATA_DIR;
+// The slambook2 two-agent cases (depth, nodepth, nooverlap, sharedworld) that the build makes from
+// the real data (BUILD/real_cases, pcr_pro_make_real_cases; docs/FORMATS.md).
+std::string caseDir(const std::string& variant) { return test::realCasePath("slambook2/" + variant); }
 
 struct Row {
   std::string method, variant;
@@ -110,7 +112,7 @@ void sweep(Output& out, const SweepConfig& sc, std::FILE* headline) {
   long source_points = 0;
   const MergeOptions defaults;
   for (const std::string& variant : sc.variants) {
-    const std::string dir = kData + "/bundles/" + variant;
+    const std::string dir = caseDir(variant);
     const BundleTruth truth = loadBundleTruth(dir + "/truth.yaml");
     const AgentMap target_full = loadBundle(dir + "/" + truth.target_agent);
     const AgentMap source_full = loadBundle(dir + "/" + truth.source_agent);
@@ -298,7 +300,7 @@ void sweep(Output& out, const SweepConfig& sc, std::FILE* headline) {
   // cloud's robust extent), full density, first variant, scale ratio 1 (the bundle's own 2.5),
   // no roll; several noise draws per level.
   // The first bundle, loaded once for the noise and outlier tables below.
-  const std::string first_dir = kData + "/bundles/" + sc.variants.front();
+  const std::string first_dir = caseDir(sc.variants.front());
   const BundleTruth truth = loadBundleTruth(first_dir + "/truth.yaml");
   const AgentMap target_full = loadBundle(first_dir + "/" + truth.target_agent);
   const AgentMap source_full = loadBundle(first_dir + "/" + truth.source_agent);
@@ -677,7 +679,7 @@ struct TimingCase {
 
 TimingCase timingCase() {
   TimingCase c;
-  const std::string dir = kData + "/bundles/depth";
+  const std::string dir = caseDir("depth");
   const BundleTruth truth = loadBundleTruth(dir + "/truth.yaml");
   c.target_full = loadBundle(dir + "/" + truth.target_agent);
   c.source_full = loadBundle(dir + "/" + truth.source_agent);
@@ -977,6 +979,10 @@ int main(int argc, char** argv) {
   try {
     if (std::string(argv[1]) == "--memory" && argc == 4) {
       return memoryProbe(std::stoi(argv[2]), std::string(argv[3]) == "merge");
+    }
+    if (const auto missing = test::missingRealCase("slambook2/depth")) {
+      std::fprintf(stderr, "pcr_pro_bench_suite: %s\n", missing->c_str());
+      return 2;
     }
     const std::string self = "/proc/" + std::to_string(getpid()) + "/exe";
     Output out(argv[1]);
