@@ -42,8 +42,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     fuzz::require(p.camera_points.allFinite(), "extractPoints gave a non-finite point");
     fuzz::require(p.camera_points.cols() <= static_cast<Eigen::Index>(msg.width) * msg.height, "too many points");
     fuzz::require(p.depth.size() == kf.idepth.size(), "depth image size differs");
-    const MapKeyframe m = toKeyframe(kf, p);
+    const MapKeyframe m = toKeyframe(kf);
     fuzz::require(m.pose.matrix().allFinite(), "keyframe pose not finite");
+    double lo = 0.0, hi = 0.0;
+    cv::minMaxLoc(m.depth_stddev, &lo, &hi);
+    fuzz::require(std::isfinite(lo) && std::isfinite(hi) && lo >= 0.0, "keyframe depth stddev not finite or negative");
   }
 
   // The store: a re-sent id replaces, the keyframe cap drops the oldest, the map cloud is capped.

@@ -136,6 +136,16 @@ TEST(Merge, GivenKeyframesAreUsed) {
   EXPECT_EQ(r.report.source_keyframe.value_or(-1), 1000);
   EXPECT_EQ(r.report.target_keyframe.value_or(-1), 2);
   EXPECT_EQ(r.diagnostics.candidate_pairs, 1);
+  // The edge between the two keyframes: pose_target^-1 * S_target_source * pose_source.
+  ASSERT_TRUE(r.report.keyframe_edge);
+  EXPECT_EQ(r.report.keyframe_edge->source_keyframe, 1000);
+  EXPECT_EQ(r.report.keyframe_edge->target_keyframe, 2);
+  const AgentMap s = loadBundle(dir + "/agent_b"), t = loadBundle(dir + "/agent_a");
+  Sim3 ps, pt;
+  for (const MapKeyframe& kf : s.keyframes) ps = kf.id == 1000 ? kf.pose : ps;
+  for (const MapKeyframe& kf : t.keyframes) pt = kf.id == 2 ? kf.pose : pt;
+  const Sim3 edge = pt.inverse() * *r.report.transform * ps;
+  EXPECT_LT((r.report.keyframe_edge->transform.matrix() - edge.matrix()).cwiseAbs().maxCoeff(), 1e-9 * edge.matrix().norm());
   expectWithin(compareWithTruth(*r.report.transform, loadBundleTruth(dir + "/truth.yaml").target_source, std::nullopt,
                                 std::nullopt),
                simTolerance(), "given keyframes");
@@ -171,6 +181,7 @@ TEST(Merge, VotePreselectionKeepsTheBestPair) {
   const MergeResult all = mergeMaps(source, target, MergeRequest(), MergeOptions());
   MergeOptions two;
   two.merge.max_candidate_pairs = 2;
+  two.merge.local_keyframes = 0;  // the preselection alone, without the best pair's neighbourhood
   const MergeResult few = mergeMaps(source, target, MergeRequest(), two);
   ASSERT_EQ(all.report.status, Status::kOk) << all.report.message;
   ASSERT_EQ(few.report.status, Status::kOk) << few.report.message;
@@ -179,6 +190,10 @@ TEST(Merge, VotePreselectionKeepsTheBestPair) {
   EXPECT_EQ(few.diagnostics.keyframe_pairs, pairs);
   EXPECT_EQ(few.report.source_keyframe, all.report.source_keyframe);
   EXPECT_EQ(few.report.target_keyframe, all.report.target_keyframe);
+  // With the neighbourhood (merge.local_keyframes 3), every pair within 3 keyframes of the best
+  // verified one is matched as well: with 3 keyframes per map, all of them.
+  two.merge.local_keyframes = 3;
+  EXPECT_EQ(mergeMaps(source, target, MergeRequest(), two).diagnostics.candidate_pairs, pairs);
 }
 
 TEST(Merge, NonOverlappingMapsAreRefused) {
@@ -216,6 +231,9 @@ TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
   EXPECT_EQ(shipped.relative_pose.pixel_error, d.relative_pose.pixel_error);
   EXPECT_EQ(shipped.relative_pose.min_inliers, d.relative_pose.min_inliers);
   EXPECT_EQ(shipped.keyframe_depth.neighborhood_radius_px, d.keyframe_depth.neighborhood_radius_px);
+  EXPECT_EQ(shipped.keyframe_depth.spatial_sigma_px, d.keyframe_depth.spatial_sigma_px);
+  EXPECT_EQ(shipped.keyframe_depth.max_relative_stddev, d.keyframe_depth.max_relative_stddev);
+  EXPECT_EQ(shipped.merge.local_keyframes, d.merge.local_keyframes);
   EXPECT_EQ(shipped.scale_estimation.gating_chi2, d.scale_estimation.gating_chi2);
   EXPECT_EQ(shipped.merge.min_overlap, d.merge.min_overlap);
   EXPECT_EQ(shipped.merge.refine_scale, d.merge.refine_scale);
@@ -225,6 +243,9 @@ TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
   EXPECT_THROW(parseMergeConfig("matching: {ratio_test: 2}\n", "x.yaml"), InputError);
   EXPECT_THROW(parseMergeConfig("merge: {min_overlap: -1}\n", "x.yaml"), InputError);
   EXPECT_THROW(parseMergeConfig("merge: {max_candidate_pairs: -1}\n", "x.yaml"), InputError);
+  EXPECT_THROW(parseMergeConfig("merge: {local_keyframes: -1}\n", "x.yaml"), InputError);
+  EXPECT_THROW(parseMergeConfig("keyframe_depth: {max_relative_stddev: 1.5}\n", "x.yaml"), InputError);
+  EXPECT_THROW(parseMergeConfig("keyframe_depth: {spatial_sigma_px: 0}\n", "x.yaml"), InputError);
 }
 
 // --- the pcr_pro_merge command line

@@ -35,6 +35,30 @@ struct KeyframeDepthOptions {
   /// pixels (a depth edge or an occlusion leaking through a sparse cloud makes the depth
   /// ambiguous).
   double depth_consistency = 0.05;
+  /// Keyframes whose depth has a per-pixel standard deviation (MapKeyframe::depth_stddev, e.g.
+  /// LSD-SLAM's inverse-depth variance): the neighbourhood's pixels are weighted by
+  /// exp(-d² / (2 spatial_sigma_px²)) / σ_idepth² (d: distance to the query [px]), so the
+  /// semi-dense structure next to a feature gives its depth; 1 px keeps the pixels next to the
+  /// feature dominant while LSD's edges one or two pixels away still count [px], > 0.
+  double spatial_sigma_px = 1.0;
+  /// Keyframes with a per-pixel standard deviation: the lookup fails when the looked-up inverse
+  /// depth's relative standard deviation exceeds this [-], in (0, 1). Measured on real LSD-SLAM
+  /// keyframes against Kinect depth (7-Scenes, lsd_slam_7scenes): pixels whose variance claims
+  /// 5-10 % are wrong by more than 30 % in 30-90 % of the cases on the less converged keyframes,
+  /// beyond 10 % almost all of them (a depth propagated from the previous keyframe at a wrong
+  /// scale, with a variance far too small); up to 5 % their error is at the level of the Kinect
+  /// reference itself. LSD's own viewer keeps σ_depth <= 0.03 keyframe units (about 3 % at the
+  /// normalised mean depth). First-order propagation to depth (σ_z = σ_idepth / idepth²) is then
+  /// unbiased to (σ/idepth)² = 0.25 %.
+  double max_relative_stddev = 0.05;
+};
+
+/// A looked-up depth and its uncertainty.
+struct DepthSample {
+  double depth = 0.0;   ///< depth along the optical axis [camera units]
+  /// Standard deviation of depth [camera units]; 0 = unknown (no per-pixel uncertainty: depth
+  /// images without depth_stddev, or the projected map cloud).
+  double stddev = 0.0;
 };
 
 /// @throw InputError naming the option (e.g. "keyframe_depth.neighborhood_radius_px must be >= 0")
@@ -61,14 +85,17 @@ class KeyframeDepth {
    * no depth image (may then be empty: every lookup fails)
    * @param[in] options lookup options
    * @throw InputError on invalid options, an invalid camera, a pose scale that is not finite
-   * and > 0, or a depth image that is not CV_32FC1 of the camera's width x height
+   * and > 0, a depth image that is not CV_32FC1 of the camera's width x height, or a
+   * depth_stddev that is not empty and not CV_32FC1 of the depth image's size (or given without
+   * a depth image)
    */
   KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& camera, const Cloud& map_cloud,
                 const KeyframeDepthOptions& options = KeyframeDepthOptions());
 
   /**
    * @brief Depth at a pixel: the depth of the valid pixel of the neighbourhood nearest to
-   * (u, v) (ties: the smaller depth), provided the neighbourhood is depth-consistent.
+   * (u, v) (ties: the smaller depth), provided the neighbourhood is depth-consistent. With
+   * per-pixel uncertainty (hasUncertainty()) the depth of sampleAt() instead.
    * @param[in] u column coordinate [px]
    * @param[in] v row coordinate [px]
    * @param[out] depth depth along the optical axis [camera units]; may be null
@@ -76,6 +103,24 @@ class KeyframeDepth {
    * neighbourhood, or when the neighbourhood's depths spread more than depth_consistency
    */
   bool depthAt(double u, double v, double* depth) const;
+
+  /**
+   * @brief Depth at a pixel with its standard deviation. Without per-pixel uncertainty as
+   * depthAt() (stddev 0). With it (MapKeyframe::depth_stddev), in inverse depth, where LSD-SLAM's
+   * noise is Gaussian: the weighted median m of the neighbourhood's inverse depths (weights
+   * exp(-d²/(2 spatial_sigma_px²)) / σ²), the pixels within 3 σ of m (one surface: a pixel across
+   * a depth edge or an outlier is left out), their weighted mean μ and mixture variance
+   * Σ w (σ² + (ρ - μ)²) / Σ w: each pixel's own noise (not divided by their number, since LSD's
+   * regularisation correlates neighbours) plus their spread, which covers the surface's slope
+   * between the pixels and the feature. depth = 1 / μ, stddev = sqrt(variance) / μ².
+   * @param[in] u column coordinate [px]
+   * @param[in] v row coordinate [px]
+   * @param[out] sample depth and stddev [camera units]; may be null
+   * @return false as depthAt(); with per-pixel uncertainty also when the pixels within 3 σ of the
+   * median hold no more than half of the weight (a depth edge) or the relative standard deviation
+   * exceeds max_relative_stddev
+   */
+  bool sampleAt(double u, double v, DepthSample* sample) const;
 
   /**
    * @brief 3D point seen at a pixel, in the keyframe's camera frame but in map units:
@@ -87,12 +132,26 @@ class KeyframeDepth {
    */
   bool pointAt(double u, double v, Eigen::Vector3d* point) const;
 
+  /**
+   * @brief As pointAt(), with the point's depth uncertainty: the standard deviation of the
+   * depth in map units (pose.scale() * DepthSample::stddev); 0 when unknown.
+   */
+  bool pointAt(double u, double v, Eigen::Vector3d* point, double* depth_stddev) const;
+
+  /// @return true when the depth has a per-pixel standard deviation (MapKeyframe::depth_stddev)
+  bool hasUncertainty() const { return !idepth_stddev_.empty(); }
+
   /// @return true when the depth comes from the keyframe's depth image, false when projected
   bool usesDepthImage() const { return uses_depth_image_; }
   /// @return number of pixels with a valid depth
   int validPixels() const { return valid_pixels_; }
 
  private:
+  /// Fills idepth_ / idepth_stddev_ from the keyframe's depth_stddev. @throw InputError on a wrong type or size
+  void setUncertainty(const MapKeyframe& keyframe);
+  /// depthAt() without per-pixel uncertainty: nearest valid pixel, depth_consistency check.
+  bool nearestDepth(double u, double v, double* depth) const;
+
   PinholeCamera camera_;
   KeyframeDepthOptions options_;
   double pose_scale_ = 1.0;
@@ -100,6 +159,9 @@ class KeyframeDepth {
   int valid_pixels_ = 0;
   /// Row-major width x height depths [camera units], 0 = unknown.
   std::vector<float> depth_;
+  /// Row-major width x height inverse depths and their standard deviations [1 / camera units],
+  /// when the keyframe has depth_stddev (empty otherwise); 0 = unknown.
+  std::vector<float> idepth_, idepth_stddev_;
   /// Pixel offsets (dx, dy) of the neighbourhood disc.
   std::vector<Eigen::Vector2i> offsets_;
 };

@@ -75,8 +75,9 @@ struct ScaleEstimate {
  * @brief Estimates the scale s and the baseline length lambda from matched 3D points.
  *
  * Noise model (per match): cov(P) = |P|² (σ_d² b bᵀ + σ_l² (I − b bᵀ)) for both points, b the
- * unit viewing ray, σ_d = relative_depth_noise, σ_l = relative_lateral_noise; the measurement
- * noise is cov(P_t) + s² R cov(P_s) Rᵀ with s the current estimate.
+ * unit viewing ray, σ_d = relative_depth_noise, σ_l = relative_lateral_noise, unless the caller
+ * gives the points' own covariances; the measurement noise is cov(P_t) + s² R cov(P_s) Rᵀ with s
+ * the current estimate.
  * Initialisation: s0 = median of the positive per-match least-squares scales, lambda0 = median
  * of t_hatᵀ (P_t − s0 R P_s). Each pass orders the matches by their Mahalanobis residual at the
  * pass's starting estimate (most consistent first), then runs sequential Kalman updates from a
@@ -89,16 +90,23 @@ struct ScaleEstimate {
  * @param[in] R rotation from the source to the target keyframe camera
  * @param[in] t_hat unit direction of the translation from the relative-pose stage
  * @param[in] options filter options
+ * @param[in] covariances_source optional per-match cov(P_s) [source units²], e.g. from LSD-SLAM's
+ * inverse-depth variance (KeyframeDepth::sampleAt()); null = the noise model above for every
+ * match. An entry that is not finite and positive definite (e.g. zero: unknown) falls back to
+ * the noise model for that point.
+ * @param[in] covariances_target optional per-match cov(P_t) [target units²], as covariances_source
  * @return the estimate; status kNotEnoughMatches when fewer than min_inliers matches are given
  * or usable, kScaleFailed when the filter accepts fewer than min_inliers matches or less than
  * min_inlier_ratio of the usable ones, the scale is not finite and > 0, or its relative standard
  * deviation exceeds max_relative_stddev. Non-finite or zero points are skipped, never an error.
- * @throw InputError when the vectors differ in size, R is not a finite rotation (RᵀR = I within
+ * @throw InputError when the vectors (and given covariance vectors) differ in size, R is not a finite rotation (RᵀR = I within
  * 1e-6, det > 0), t_hat is not a finite unit vector (|t_hat| = 1 within 1e-6), or the options
  * are invalid
  */
 ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
                             const std::vector<Eigen::Vector3d>& points_target, const Eigen::Matrix3d& R,
-                            const Eigen::Vector3d& t_hat, const ScaleEstimationOptions& options);
+                            const Eigen::Vector3d& t_hat, const ScaleEstimationOptions& options,
+                            const std::vector<Eigen::Matrix3d>* covariances_source = nullptr,
+                            const std::vector<Eigen::Matrix3d>* covariances_target = nullptr);
 
 }  // namespace pcr_pro

@@ -38,6 +38,11 @@ struct MapKeyframe {
   /// Depth along the optical axis (CV_32FC1) in camera units (before the pose scale), 0 or
   /// non-finite = unknown; empty when the keyframe has no depth image.
   cv::Mat depth;
+  /// Standard deviation of `depth` per pixel (CV_32FC1) [camera units], 0 or non-finite =
+  /// unknown; empty when the depth has no per-pixel uncertainty (depth images of bundles and of
+  /// pcr_pro/Keyframe messages): the scale stage's noise model (ScaleEstimationOptions) then
+  /// applies. LSD-SLAM keyframes carry it from their inverse-depth variance (toKeyframe()).
+  cv::Mat depth_stddev;
   /// camera -> map similarity: p_map = scale * R * p_cam + position
   Sim3 pose;
 };

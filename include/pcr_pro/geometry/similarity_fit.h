@@ -89,15 +89,17 @@ Eigen::Matrix<double, 3, 7> similarityJacobian(const Eigen::Vector3d& y);
  */
 Eigen::Matrix<double, 7, 1> similarityDifference(const Sim3& a, const Sim3& b);
 
-/// @return exp(δ) · s (the update of the file comment's convention)
-Sim3 applyDelta(const Eigen::Matrix<double, 7, 1>& delta, const Sim3& s);
-
 /**
- * @brief The adjoint of s in this convention: s · exp(ξ) = exp(Ad ξ) · s to first order, with
- * Ad = [sR, [t]x R, -t; 0, R, 0; 0, 0, 1]. The covariance of s⁻¹ (left perturbation) is
+ * @brief The adjoint of a similarity G in this convention: G · exp(δ) · G⁻¹ = exp(Ad_G δ), so a
+ * covariance C of δ about Ŝ becomes Ad_G C Ad_Gᵀ about G Ŝ G⁻¹ (e.g. moved from the target map's
+ * frame into a keyframe's, about P⁻¹ Ŝ with G = P⁻¹). With G = (s, R, t):
+ * Ad_G = [[sR, [t]x R, -t], [0, R, 0], [0, 0, 1]]. The covariance of s⁻¹ (left perturbation) is
  * Ad(s⁻¹) Σ Ad(s⁻¹)ᵀ when Σ is that of s.
  */
-Matrix7d similarityAdjoint(const Sim3& s);
+Matrix7d similarityAdjoint(const Sim3& g);
+
+/// @return exp(δ) · s (the update of the file comment's convention)
+Sim3 applyDelta(const Eigen::Matrix<double, 7, 1>& delta, const Sim3& s);
 
 /**
  * @brief The smallest covariance (in the generalised-eigenvalue sense) that covers both a and b:

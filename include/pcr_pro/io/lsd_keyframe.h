@@ -63,7 +63,15 @@ struct LsdPoints {
  */
 LsdPoints extractPoints(const LsdKeyframe& keyframe, const LsdFilterOptions& options);
 
-/// @return the pipeline's keyframe: grey image, depth of the kept points, camToWorld as pose
-MapKeyframe toKeyframe(const LsdKeyframe& keyframe, const LsdPoints& points);
+/**
+ * @brief The pipeline's keyframe: grey image, camToWorld as pose, and the keyframe's whole
+ * semi-dense depth with its uncertainty. Every pixel with a finite inverse depth > 0 and a finite
+ * variance > 0 gets depth = 1 / idepth and depth_stddev = sqrt(idepth_var) / idepth² (first-order
+ * propagation) [keyframe depth units]; the others stay 0 (unknown). The viewer's filters are not
+ * applied here: they are for display (and for the map cloud, extractPoints()); the keyframe depth
+ * lookup weighs every pixel by its own variance instead (KeyframeDepth).
+ * @param[in] keyframe decoded keyframe
+ */
+MapKeyframe toKeyframe(const LsdKeyframe& keyframe);
 
 }  // namespace pcr_pro

@@ -34,6 +34,25 @@ struct KeyframePairReport {
   std::string note;       ///< how it was used, or why not
 };
 
+/**
+ * @brief The merge as a Sim(3) constraint between two keyframes, the kind of edge LSD-SLAM's own
+ * pose graph holds: S_target_source expressed between the anchor keyframes' cameras. A pose-graph
+ * user attaches it to these two keyframes (not to the map origins): each monocular map's scale
+ * drifts, so the similarity holds where the maps overlap, at these keyframes, and its covariance
+ * includes how much it changes from one overlapping keyframe pair to the next.
+ */
+struct KeyframeEdge {
+  long source_keyframe = 0;  ///< anchor keyframe of the source map
+  long target_keyframe = 0;  ///< anchor keyframe of the target map
+  /// target keyframe camera <- source keyframe camera, p_t = s R p_s + t in each keyframe's own
+  /// camera units: pose_target⁻¹ ∘ S_target_source ∘ pose_source (poses camera -> map).
+  Sim3 transform;
+  /// 7x7 covariance of (x y z rot_x rot_y rot_z log-scale), left perturbation in the target
+  /// keyframe's camera frame [target camera units², rad², -]: the map-frame covariance moved by
+  /// the adjoint of pose_target⁻¹ (similarityAdjoint()).
+  Matrix7d covariance = Matrix7d::Zero();
+};
+
 /// Everything a registration reports. Optional parts are absent when the run stopped early.
 struct RegistrationReport {
   Status status = Status::kInvalidInput;
@@ -59,6 +78,7 @@ struct RegistrationReport {
   std::optional<double> refinement_chi2;            ///< squared Mahalanobis distance refined vs keyframe [-]
   std::optional<double> overlap;                    ///< overlap of the aligned maps [-]
   std::vector<KeyframePairReport> keyframe_pairs;   ///< every verified keyframe pair
+  std::optional<KeyframeEdge> keyframe_edge;        ///< the result between the anchor keyframes (merge, OK)
   StageTimings timings;
 };
 

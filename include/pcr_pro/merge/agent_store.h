@@ -104,7 +104,8 @@ class AgentStore {
 
   /**
    * @brief The agent's map for the merge pipeline. Plain keyframes come with the latest map
-   * cloud; LSD keyframes become keyframes (grey image, depth of the kept points) and the map
+   * cloud; LSD keyframes become keyframes (grey image, their whole semi-dense depth with its
+   * standard deviation from the inverse-depth variance, toKeyframe()) and the map
    * cloud is the union of their filtered points mapped by their current camToWorld, voxelised to
    * limits().max_cloud_points if larger.
    * @param[in] lsd_filters LSD viewer filters for LSD keyframes

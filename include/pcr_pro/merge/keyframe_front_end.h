@@ -2,7 +2,8 @@
  * @file keyframe_front_end.h
  * @brief The merge's fast estimate, stage 1: SIFT once per keyframe (cached across merges),
  * the descriptor-vote preselection of keyframe pairs, FLANN matching and the OpenGV relative
- * pose of every candidate pair.
+ * pose of every candidate pair; then, when the preselection left pairs out, every pair within
+ * merge.local_keyframes of the best verified pair too (where the maps overlap best).
  */
 #pragma once
 
@@ -110,6 +111,14 @@ class KeyframeFrontEnd {
  private:
   std::vector<std::shared_ptr<const KeyframeFeatures>> featuresOf(const std::vector<const MapKeyframe*>& keyframes,
                                                                   const std::string& key, FrontEndResult* out);
+  /// Matches the given (source, target) index pairs in full, adds them to out->pairs with their
+  /// relative pose and re-sorts out->pairs (FrontEndResult::pairs order).
+  void matchPairs(const std::vector<const MapKeyframe*>& src, const std::vector<const MapKeyframe*>& tgt,
+                  const std::vector<std::shared_ptr<const KeyframeFeatures>>& src_features,
+                  const std::vector<std::shared_ptr<const KeyframeFeatures>>& tgt_features,
+                  const std::vector<std::pair<std::size_t, std::size_t>>& pairs,
+                  const std::vector<std::vector<int>>& votes, const PinholeCamera& source_camera,
+                  const PinholeCamera& target_camera, FrontEndResult* out) const;
   MergeOptions options_;
   FeatureCache cache_;
 };

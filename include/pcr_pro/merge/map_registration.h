@@ -20,6 +20,23 @@
 
 namespace pcr_pro {
 
+/// A ball in the target map's frame where the overlap is measured (MapRegistration::overlap()).
+struct OverlapRegion {
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();  ///< [target units]
+  double radius = 0.0;                               ///< [target units]; 0 = the whole maps
+};
+
+/**
+ * @brief Where the maps overlap: the ball around the keyframe matches' target points that holds
+ * them all (the surfaces the used keyframe pairs see in common). Each monocular map's scale
+ * drifts, so two maps align only where they overlap; over the whole maps the overlap fraction
+ * would measure the drift elsewhere (on lsd_slam_7scenes 20-22 % of the whole maps against
+ * 36-42 % in this ball).
+ * @param[in] matches keyframe matches (target points in the target frame)
+ * @return the ball [target units]; radius 0 (the whole maps) with fewer than 3 matches
+ */
+OverlapRegion overlapRegion(const std::vector<PointMatch3>& matches);
+
 /// Outcome of MapRegistration::refine().
 struct Refinement {
   Status status = Status::kIcpNotConverged;  ///< kOk, kDegenerate or kIcpNotConverged
@@ -66,8 +83,9 @@ class MapRegistration {
    * @brief Overlap of the aligned maps: the larger of the fraction of (a sample of) the source
    * points that have a target point within `factor` spacings and the same fraction of the target
    * points towards the source; the spacing is the larger of the two clouds' median spacings.
+   * Only the points that the alignment puts inside `region` count (default: all).
    */
-  double overlap(const Sim3& target_source, double factor) const;
+  double overlap(const Sim3& target_source, double factor, const OverlapRegion& region = OverlapRegion()) const;
 
   const Cloud& source() const { return source_; }
   const Cloud& target() const { return target_; }

@@ -37,11 +37,19 @@ class MergeGates {
    * @brief Chooses the estimate and checks it.
    *
    * The refinement is kept when it converged, agrees with the keyframe estimate within
-   * refinement_agreement_chi2 (7 DoF, both covariances), rotates it by at most
+   * refinement_agreement_chi2 (7 DoF, both covariances), moves the pooled keyframe matches no
+   * farther (RMS) than the farthest used keyframe pair's own estimate does, rotates it by at most
    * max_icp_rotation_correction_deg and changes its scale by at most max_scale_disagreement; its
-   * covariance is then scaled by max(1, χ² / 7), the disagreement of two independent estimates.
+   * covariance is then scaled by max(1, χ² / 7), the disagreement of two independent estimates,
+   * plus the keyframe pairs' between-pair covariance (KeyframeEstimate::between: the edge is
+   * attached to one keyframe pair, where the local similarity differs from the region's) and
+   * d dᵀ, d the move from the keyframe estimate to the refined one (the keyframe evidence
+   * measures the anchor pair's surroundings; against their local similarity the move is a
+   * possible error). On maps without drift this is conservative.
    * Otherwise the keyframe estimate and its covariance are reported, with why in the message.
-   * The reported estimate must then overlap the target by min_overlap (MapRegistration::overlap()).
+   * The reported estimate must then overlap the target by min_overlap (MapRegistration::overlap()),
+   * measured in the ball that holds the pooled keyframe matches (where the maps overlap: each
+   * monocular map drifts, so outside it the maps need not align).
    */
   GateVerdict judge(const KeyframeEstimate& keyframes, const Refinement& refinement,
                     const MapRegistration& registration) const;

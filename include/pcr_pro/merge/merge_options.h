@@ -31,6 +31,14 @@ struct MergeGateOptions {
   /// squared Mahalanobis distance (7 DoF, covariance of both) is dropped and reported [-], > 0
   /// (χ² with 7 DoF: 24.32 = 99.9 %).
   double pair_consistency_chi2 = 24.32;
+  /// Locality of the edge: only keyframe pairs whose keyframes lie within this many keyframes
+  /// (in id order, the order along each agent's path) of the best pair's contribute to it
+  /// [keyframes], >= 0; 0 = every verified pair. Each monocular map's scale and orientation drift
+  /// along its path, so distant pairs measure a different local similarity; on the real LSD-SLAM
+  /// maps of lsd_slam_7scenes, 3 keyframes on either side cover the region where the two paths
+  /// overlap (6 x 3 keyframes) and leave out the pairs where one map's start overlaps the other's
+  /// middle (20-26 deg and 25-40 % away).
+  int local_keyframes = 3;
   /// The refined estimate is kept only when it differs from the keyframe estimate by at most
   /// this squared Mahalanobis distance (7 DoF, both covariances); otherwise the keyframe
   /// estimate is reported, with the refinement's verdict [-], > 0 (24.32 = 99.9 %).

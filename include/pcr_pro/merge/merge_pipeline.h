@@ -30,6 +30,7 @@ struct MergeDiagnostics {
   int verified_pairs = 0;          ///< candidate pairs with a verified relative pose
   int used_pairs = 0;              ///< verified pairs in the keyframe estimate
   int dropped_pairs = 0;           ///< verified pairs dropped as inconsistent with the others
+  int distant_pairs = 0;           ///< verified pairs set aside as too far from the best pair (merge.local_keyframes)
   int features_computed = 0;       ///< keyframes whose SIFT features were computed by this merge
   int features_cached = 0;         ///< keyframes whose features came from the cache
   int feature_matches = 0;         ///< good SIFT matches of the anchor pair
@@ -43,7 +44,11 @@ struct MergeDiagnostics {
   double refinement_chi2 = 0.0;    ///< refined vs keyframe estimate, squared Mahalanobis [-]
   double block_spread_factor = 1.0;  ///< enlargement of the covariance by the block spread [-]
   Sim3 initial;                    ///< the keyframe estimate of S_target_source
-  Matrix7d keyframe_covariance = Matrix7d::Zero();  ///< its covariance (similarity_fit.h)
+  Matrix7d keyframe_covariance = Matrix7d::Zero();  ///< its (predictive) covariance (similarity_fit.h)
+  /// The keyframe estimate's covariance as the pooled mean's standard error alone (without the
+  /// between-pair spread), for comparison (KeyframeEstimate::mean_covariance).
+  Matrix7d keyframe_mean_covariance = Matrix7d::Zero();
+  Matrix7d between_pairs = Matrix7d::Zero();  ///< between-pair covariance T (KeyframeEstimate::between)
   Matrix7d covariance = Matrix7d::Zero();           ///< the reported estimate's (similarity_fit.h)
   Status refinement_status = Status::kIcpNotConverged;  ///< of the refinement, whatever the gates did
   Sim3 refined;                                     ///< the refined estimate, also when not kept

@@ -27,6 +27,10 @@ struct PairEvidence {
   int inliers = 0;        ///< relative-pose inliers
   int depth_matches = 0;  ///< inliers with depth on both sides
   ScaleEstimate scale;    ///< the pair's Kalman-filter scale
+  /// Distance between the two keyframes' cameras over the median distance of the target
+  /// keyframe's matched points (both in target units), when the scale filter succeeded [-]: how
+  /// far apart the two keyframes see the overlap from (0 = from the same place).
+  double baseline_ratio = 0.0;
   bool has_estimate = false;  ///< the scale filter succeeded: estimate and covariance are set
   Sim3 estimate;              ///< the pair's own S_target_source
   Matrix7d covariance = Matrix7d::Zero();  ///< of estimate (similarity_fit.h convention)
@@ -44,13 +48,20 @@ struct KeyframeEstimate {
   /// kOk; or the status of the best pair's failure (NOT_ENOUGH_MATCHES, SCALE_FAILED, ...).
   Status status = Status::kScaleFailed;
   std::string message;
-  Sim3 estimate;                           ///< S_target_source
-  /// Covariance of the estimate as the similarity where the maps overlap (similarity_fit.h
-  /// convention): the fit's and the pooled mean's, plus `between`, so that it covers the
-  /// similarity local to any of the overlapping keyframe pairs (each monocular map's scale drifts).
+  /// S_target_source: one robust fit over the used pairs' matches and relative-pose rotations,
+  /// started from the random-effects mean of the pairs' own estimates.
+  Sim3 estimate;
+  /**
+   * Covariance of estimate against the local truth at one keyframe pair, such as the anchor
+   * pair the edge is attached to (similarity_fit.h convention): mean_covariance + between, the
+   * predictive covariance of the random-effects model. Each map's scale drift and distortion
+   * make the similarity differ from place to place; between measures by how much.
+   */
   Matrix7d covariance = Matrix7d::Zero();
-  /// Spread of the pairs' own estimates beyond their noise (random effects), i.e. how much the
-  /// similarity varies over the overlap (map distortion, scale drift) [same convention].
+  /// Of the estimate alone: covers both the fit's and the pooled mean's standard error.
+  Matrix7d mean_covariance = Matrix7d::Zero();
+  /// Between-pair covariance T (DerSimonian-Laird): how much the pairs' own similarities differ
+  /// beyond their noise; zero with one pair.
   Matrix7d between = Matrix7d::Zero();
   SimilarityFit fit;                       ///< of the pooled matches
   std::vector<PairEvidence> pairs;         ///< every verified pair, in the front end's order
@@ -58,7 +69,8 @@ struct KeyframeEstimate {
   /// The pooled inlier matches (group = index in pairs), for the refinement.
   std::vector<PointMatch3> matches;
   int used_pairs = 0;
-  int dropped_pairs = 0;
+  int dropped_pairs = 0;  ///< set aside as inconsistent with the others
+  int distant_pairs = 0;  ///< set aside as too far along a path from the best pair (merge.local_keyframes)
   double ms = 0.0;
 };
 

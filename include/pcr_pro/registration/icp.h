@@ -62,6 +62,12 @@ struct IcpOptions {
   /// point beyond the target's border (no overlap there) matches a border point whose own nearest
   /// source point is much closer: it is rejected instead of pulling the map inwards.
   bool reciprocal = true;
+  /// Symmetric matching (point-to-plane): besides every source point to its nearest target point,
+  /// a sample of the target points (as many as the source sample) to their nearest source point,
+  /// on the source's normals. A source point beyond the target's border pulls the map inwards, a
+  /// target point beyond the source's border pulls it outwards: together the border pulls cancel
+  /// (with one direction only, a similarity ICP shrinks the source on a partial overlap).
+  bool symmetric = true;
   /// Slack of the reciprocal check [point spacings], >= 0. The spacing is the larger of the
   /// target's and the (sampled, scaled) source's median nearest-neighbour distance.
   double reciprocal_tolerance = 1.5;
@@ -121,6 +127,10 @@ struct Correspondences {
   double residual_scale = 0.0;
   /// Median nearest-neighbour spacing of the target cloud [target units]; 0 when unknown.
   double spacing = 0.0;
+  /// How many times the correspondences measure the same surfaces [-], >= 1: 2 with symmetric
+  /// matching (each direction covers the overlap once, with the same noise), so that the closed
+  /// form counts each piece of evidence once.
+  double redundancy = 1.0;
 };
 
 /// Outcome of an ICP run.

@@ -31,6 +31,12 @@ void validate(const KeyframeDepthOptions& o) {
   if (!(o.depth_consistency >= 0.0 && std::isfinite(o.depth_consistency))) {
     throw InputError("keyframe_depth.depth_consistency must be finite and >= 0");
   }
+  if (!(o.spatial_sigma_px > 0.0 && std::isfinite(o.spatial_sigma_px))) {
+    throw InputError("keyframe_depth.spatial_sigma_px must be finite and > 0");
+  }
+  if (!(o.max_relative_stddev > 0.0 && o.max_relative_stddev < 1.0)) {
+    throw InputError("keyframe_depth.max_relative_stddev must be in (0, 1)");
+  }
 }
 
 KeyframeDepth::KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& camera, const Cloud& map_cloud,
@@ -75,7 +81,11 @@ KeyframeDepth::KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& c
         if (std::isfinite(z) && z >= min_depth && z <= max_depth) dst[col] = src[col];
       }
     }
+    if (!keyframe.depth_stddev.empty()) setUncertainty(keyframe);
   } else {
+    if (!keyframe.depth_stddev.empty()) {
+      throw InputError("keyframe " + std::to_string(keyframe.id) + ": depth_stddev given without a depth image");
+    }
     uses_depth_image_ = false;
     const Sim3 map_to_camera = pose.inverse();
     const Eigen::Index n = map_cloud.cols();
@@ -116,6 +126,14 @@ KeyframeDepth::KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& c
 }
 
 bool KeyframeDepth::depthAt(double u, double v, double* depth) const {
+  if (!hasUncertainty()) return nearestDepth(u, v, depth);
+  DepthSample d;
+  if (!sampleAt(u, v, &d)) return false;
+  if (depth != nullptr) *depth = d.depth;
+  return true;
+}
+
+bool KeyframeDepth::nearestDepth(double u, double v, double* depth) const {
   const int width = camera_.width;
   const int height = camera_.height;
   // Also false for NaN.
@@ -146,6 +164,113 @@ bool KeyframeDepth::depthAt(double u, double v, double* depth) const {
   if (!(best_z > 0.0)) return false;
   if (z_max - z_min > options_.depth_consistency * z_min) return false;
   if (depth != nullptr) *depth = best_z;
+  return true;
+}
+
+void KeyframeDepth::setUncertainty(const MapKeyframe& keyframe) {
+  const cv::Mat& sd = keyframe.depth_stddev;
+  if (sd.type() != CV_32FC1 || sd.size() != keyframe.depth.size()) {
+    throw InputError("keyframe " + std::to_string(keyframe.id) +
+                     ": depth_stddev must be CV_32FC1 of the depth image's size");
+  }
+  const int width = camera_.width, height = camera_.height;
+  idepth_.assign(depth_.size(), 0.0f);
+  idepth_stddev_.assign(depth_.size(), 0.0f);
+  for (int row = 0; row < height; ++row) {
+    const float* src = sd.ptr<float>(row);
+    for (int col = 0; col < width; ++col) {
+      const size_t k = static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col);
+      const double z = depth_[k], sz = src[col];
+      // A pixel without a usable standard deviation has no depth either: its weight is unknown.
+      if (!(z > 0.0 && sz > 0.0 && std::isfinite(sz))) {
+        depth_[k] = 0.0f;
+        continue;
+      }
+      const auto rho = static_cast<float>(1.0 / z), sigma = static_cast<float>(sz / (z * z));
+      if (!(rho > 0.0f && sigma > 0.0f && std::isfinite(rho) && std::isfinite(sigma))) {
+        depth_[k] = 0.0f;
+        continue;
+      }
+      idepth_[k] = rho;
+      idepth_stddev_[k] = sigma;
+    }
+  }
+}
+
+bool KeyframeDepth::sampleAt(double u, double v, DepthSample* sample) const {
+  if (!hasUncertainty()) {
+    double z = 0.0;
+    if (!nearestDepth(u, v, &z)) return false;
+    if (sample != nullptr) *sample = DepthSample{z, 0.0};
+    return true;
+  }
+  const int width = camera_.width;
+  const int height = camera_.height;
+  if (!(u >= -0.5 && u < width - 0.5 && v >= -0.5 && v < height - 0.5)) return false;  // also NaN
+  const int col0 = std::min(width - 1, static_cast<int>(std::floor(u + 0.5)));
+  const int row0 = std::min(height - 1, static_cast<int>(std::floor(v + 0.5)));
+  struct Pixel {
+    double rho, var, w;
+  };
+  std::vector<Pixel> pixels;
+  pixels.reserve(offsets_.size());
+  const double inv_two_h2 = 1.0 / (2.0 * options_.spatial_sigma_px * options_.spatial_sigma_px);
+  double total = 0.0;
+  for (const Eigen::Vector2i& off : offsets_) {
+    const int col = col0 + off.x();
+    const int row = row0 + off.y();
+    if (col < 0 || col >= width || row < 0 || row >= height) continue;
+    const size_t k = static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col);
+    if (!(depth_[k] > 0.0f)) continue;
+    const double du = col - u, dv = row - v;
+    const double var = static_cast<double>(idepth_stddev_[k]) * idepth_stddev_[k];
+    const double w = std::exp(-(du * du + dv * dv) * inv_two_h2) / var;
+    if (!(w > 0.0 && std::isfinite(w))) continue;
+    pixels.push_back({idepth_[k], var, w});
+    total += w;
+  }
+  if (pixels.empty()) return false;
+  // Weighted median of the inverse depths.
+  std::sort(pixels.begin(), pixels.end(), [](const Pixel& a, const Pixel& b) { return a.rho < b.rho; });
+  double acc = 0.0, median = pixels.back().rho;
+  for (const Pixel& p : pixels) {
+    acc += p.w;
+    if (acc >= 0.5 * total) {
+      median = p.rho;
+      break;
+    }
+  }
+  // One surface: the pixels within 3 σ of the median; their mixture mean and variance.
+  double sw = 0.0, swr = 0.0;
+  for (const Pixel& p : pixels) {
+    if ((p.rho - median) * (p.rho - median) > 9.0 * p.var) continue;
+    sw += p.w;
+    swr += p.w * p.rho;
+  }
+  if (!(sw > 0.5 * total)) return false;
+  const double mean = swr / sw;
+  double swv = 0.0;
+  for (const Pixel& p : pixels) {
+    if ((p.rho - median) * (p.rho - median) > 9.0 * p.var) continue;
+    swv += p.w * (p.var + (p.rho - mean) * (p.rho - mean));
+  }
+  const double sigma = std::sqrt(swv / sw);
+  if (!(mean > 0.0) || !(sigma <= options_.max_relative_stddev * mean)) return false;
+  const double z = 1.0 / mean;
+  const double max_depth = options_.max_depth > 0.0 ? options_.max_depth : std::numeric_limits<double>::infinity();
+  if (!(z >= options_.min_depth && z <= max_depth)) return false;
+  if (sample != nullptr) *sample = DepthSample{z, sigma / (mean * mean)};
+  return true;
+}
+
+bool KeyframeDepth::pointAt(double u, double v, Eigen::Vector3d* point, double* depth_stddev) const {
+  DepthSample d;
+  if (!sampleAt(u, v, &d)) return false;
+  if (point != nullptr) {
+    *point = (pose_scale_ * d.depth) *
+             Eigen::Vector3d((u - camera_.cx) / camera_.fx, (v - camera_.cy) / camera_.fy, 1.0);
+  }
+  if (depth_stddev != nullptr) *depth_stddev = pose_scale_ * d.stddev;
   return true;
 }
 

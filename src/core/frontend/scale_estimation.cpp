@@ -36,6 +36,17 @@ Eigen::Matrix3d pointCovariance(const Eigen::Vector3d& p, double sigma_d, double
   return d2 * (sigma_d * sigma_d * along + sigma_l * sigma_l * (Eigen::Matrix3d::Identity() - along));
 }
 
+// The caller's covariance of point i when it is usable (finite, positive definite), else the
+// noise model's.
+Eigen::Matrix3d givenOr(const std::vector<Eigen::Matrix3d>* given, size_t i, const Eigen::Vector3d& p, double sigma_d,
+                        double sigma_l) {
+  if (given != nullptr) {
+    const Eigen::Matrix3d& c = (*given)[i];
+    if (c.allFinite() && c.isApprox(c.transpose()) && Eigen::LLT<Eigen::Matrix3d>(c).info() == Eigen::Success) return c;
+  }
+  return pointCovariance(p, sigma_d, sigma_l);
+}
+
 double median(std::vector<double> values) {
   const size_t mid = values.size() / 2;
   std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(mid), values.end());
@@ -95,11 +106,19 @@ void validate(const ScaleEstimationOptions& o) {
 
 ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
                             const std::vector<Eigen::Vector3d>& points_target, const Eigen::Matrix3d& R,
-                            const Eigen::Vector3d& t_hat, const ScaleEstimationOptions& options) {
+                            const Eigen::Vector3d& t_hat, const ScaleEstimationOptions& options,
+                            const std::vector<Eigen::Matrix3d>* covariances_source,
+                            const std::vector<Eigen::Matrix3d>* covariances_target) {
   validate(options);
   if (points_source.size() != points_target.size()) {
     throw InputError("scale estimation: " + std::to_string(points_source.size()) + " source points but " +
                      std::to_string(points_target.size()) + " target points");
+  }
+  for (const auto* c : {covariances_source, covariances_target}) {
+    if (c != nullptr && c->size() != points_source.size()) {
+      throw InputError("scale estimation: " + std::to_string(c->size()) + " point covariances for " +
+                       std::to_string(points_source.size()) + " matches");
+    }
   }
   if (!R.allFinite() || !((R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() <= kUnitTolerance) ||
       !(R.determinant() > 0.0)) {
@@ -135,8 +154,8 @@ ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
     m.index = i;
     m.a = R * ps;
     m.z = pt;
-    m.cov_t = pointCovariance(pt, sigma_d, sigma_l);
-    m.cov_s = R * pointCovariance(ps, sigma_d, sigma_l) * R.transpose();
+    m.cov_t = givenOr(covariances_target, i, pt, sigma_d, sigma_l);
+    m.cov_s = R * givenOr(covariances_source, i, ps, sigma_d, sigma_l) * R.transpose();
     if (!m.a.allFinite() || !m.cov_t.allFinite() || !m.cov_s.allFinite()) continue;
     matches.push_back(m);
   }

@@ -110,21 +110,21 @@ Eigen::Matrix<double, 7, 1> similarityDifference(const Sim3& a, const Sim3& b) {
   return d;
 }
 
-Sim3 applyDelta(const Eigen::Matrix<double, 7, 1>& delta, const Sim3& s) {
-  const Sim3 step(std::exp(delta(6)), expSO3(delta.segment<3>(3)), delta.head<3>());
-  return step * s;
-}
-
-Matrix7d similarityAdjoint(const Sim3& s) {
+Matrix7d similarityAdjoint(const Sim3& g) {
   Matrix7d ad = Matrix7d::Zero();
-  const Eigen::Matrix3d& r = s.rotation();
-  const Eigen::Vector3d& t = s.translation();
-  ad.block<3, 3>(0, 0) = s.scale() * r;
+  const Eigen::Matrix3d& r = g.rotation();
+  const Eigen::Vector3d& t = g.translation();
+  ad.block<3, 3>(0, 0) = g.scale() * r;
   ad.block<3, 3>(0, 3) = skew(t) * r;
   ad.block<3, 1>(0, 6) = -t;
   ad.block<3, 3>(3, 3) = r;
   ad(6, 6) = 1.0;
   return ad;
+}
+
+Sim3 applyDelta(const Eigen::Matrix<double, 7, 1>& delta, const Sim3& s) {
+  const Sim3 step(std::exp(delta(6)), expSO3(delta.segment<3>(3)), delta.head<3>());
+  return step * s;
 }
 
 Matrix7d coveringCovariance(const Matrix7d& a, const Matrix7d& b, double* factor) {

@@ -78,12 +78,30 @@ LsdPoints extractPoints(const LsdKeyframe& kf, const LsdFilterOptions& o) {
   return out;
 }
 
-MapKeyframe toKeyframe(const LsdKeyframe& lsd, const LsdPoints& points) {
+MapKeyframe toKeyframe(const LsdKeyframe& lsd) {
   MapKeyframe kf;
   kf.id = lsd.id;
   kf.image = lsd.image;
-  kf.depth = points.depth;
   kf.pose = lsd.cam_to_world;
+  const int w = lsd.idepth.cols, h = lsd.idepth.rows;
+  kf.depth = cv::Mat::zeros(h, w, CV_32FC1);
+  kf.depth_stddev = cv::Mat::zeros(h, w, CV_32FC1);
+  for (int y = 0; y < h; ++y) {
+    const float* id_row = lsd.idepth.ptr<float>(y);
+    const float* var_row = lsd.idepth_var.ptr<float>(y);
+    float* depth_row = kf.depth.ptr<float>(y);
+    float* stddev_row = kf.depth_stddev.ptr<float>(y);
+    for (int x = 0; x < w; ++x) {
+      const double idepth = id_row[x], var = var_row[x];
+      // Written so that NaN fails too.
+      if (!(idepth > 0.0 && std::isfinite(idepth) && var > 0.0 && std::isfinite(var))) continue;
+      const float depth = static_cast<float>(1.0 / idepth);
+      const float stddev = static_cast<float>(std::sqrt(var) / (idepth * idepth));
+      if (!(std::isfinite(depth) && depth > 0.0f && std::isfinite(stddev) && stddev > 0.0f)) continue;
+      depth_row[x] = depth;
+      stddev_row[x] = stddev;
+    }
+  }
   return kf;
 }
 

@@ -72,6 +72,18 @@ std::string toYaml(const RegistrationReport& r) {
     if (r.refinement_chi2) os << ", chi2: " << *r.refinement_chi2;
     os << "}\n";
   }
+  if (r.keyframe_edge) {
+    const KeyframeEdge& e = *r.keyframe_edge;
+    const Eigen::Quaterniond q = e.transform.quaternion();
+    const Eigen::Vector3d& t = e.transform.translation();
+    os << "keyframe_edge:\n";
+    os << "  source_keyframe: " << e.source_keyframe << "\n";
+    os << "  target_keyframe: " << e.target_keyframe << "\n";
+    os << "  scale: " << e.transform.scale() << "\n";
+    os << "  rotation: [" << q.x() << ", " << q.y() << ", " << q.z() << ", " << q.w() << "]\n";
+    os << "  translation: [" << t.x() << ", " << t.y() << ", " << t.z() << "]\n";
+    writeMatrix(os, "  covariance", e.covariance);
+  }
   if (!r.keyframe_pairs.empty()) {
     os << "keyframe_pairs:\n";
     for (const KeyframePairReport& p : r.keyframe_pairs) {

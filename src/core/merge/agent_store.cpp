@@ -199,7 +199,7 @@ AgentMap AgentStore::toAgentMap(const LsdFilterOptions& lsd_filters, CloudCap* c
   Eigen::Index total = 0;
   for (const auto& entry : lsd_keyframes_) {
     const LsdPoints points = extractPoints(entry.second, lsd_filters);
-    map.keyframes.push_back(toKeyframe(entry.second, points));
+    map.keyframes.push_back(toKeyframe(entry.second));
     parts.push_back(entry.second.cam_to_world.apply(points.camera_points));
     total += parts.back().cols();
   }

@@ -153,7 +153,7 @@ FrontEndResult KeyframeFrontEnd::run(const AgentMap& source, const AgentMap& tar
       return out;
     }
   }
-  auto t = Clock::now();
+  const auto t = Clock::now();
   const auto src_features = featuresOf(src, source_key, &out);
   const auto tgt_features = featuresOf(tgt, target_key, &out);
 
@@ -175,35 +175,69 @@ FrontEndResult KeyframeFrontEnd::run(const AgentMap& source, const AgentMap& tar
     });
     pairs.resize(max_pairs);
   }
-  out.pairs.resize(pairs.size());
+  const bool preselected = pairs.size() < static_cast<std::size_t>(out.keyframe_pairs);
+  out.features_ms = msSince(t);
+  matchPairs(src, tgt, src_features, tgt_features, pairs, votes, source.camera, target.camera, &out);
+  // Where the maps overlap best, every pair: the edge is made of the pairs near the best one
+  // (merge.local_keyframes, SimilarityInitializer), and the votes may have left some of them out.
+  const int k = options_.merge.local_keyframes;
+  if (preselected && k > 0 && !out.pairs.empty() && out.pairs.front().pose.status == Status::kOk) {
+    const auto rank = [](const std::vector<const MapKeyframe*>& list, const MapKeyframe* kf) {
+      long r = 0;
+      for (const MapKeyframe* other : list) r += other->id < kf->id ? 1 : 0;
+      return r;
+    };
+    const long bs = rank(src, out.pairs.front().source), bt = rank(tgt, out.pairs.front().target);
+    std::vector<std::pair<std::size_t, std::size_t>> extra;
+    for (std::size_t i = 0; i < src.size(); ++i) {
+      for (std::size_t j = 0; j < tgt.size(); ++j) {
+        if (std::abs(rank(src, src[i]) - bs) > k || std::abs(rank(tgt, tgt[j]) - bt) > k) continue;
+        if (std::find(pairs.begin(), pairs.end(), std::make_pair(i, j)) == pairs.end()) extra.emplace_back(i, j);
+      }
+    }
+    matchPairs(src, tgt, src_features, tgt_features, extra, votes, source.camera, target.camera, &out);
+  }
+  return out;
+}
+
+void KeyframeFrontEnd::matchPairs(const std::vector<const MapKeyframe*>& src, const std::vector<const MapKeyframe*>& tgt,
+                                  const std::vector<std::shared_ptr<const KeyframeFeatures>>& src_features,
+                                  const std::vector<std::shared_ptr<const KeyframeFeatures>>& tgt_features,
+                                  const std::vector<std::pair<std::size_t, std::size_t>>& pairs,
+                                  const std::vector<std::vector<int>>& votes, const PinholeCamera& source_camera,
+                                  const PinholeCamera& target_camera, FrontEndResult* out) const {
+  auto t = Clock::now();
+  const std::size_t first = out->pairs.size();
+  out->pairs.resize(first + pairs.size());
   for (std::size_t k = 0; k < pairs.size(); ++k) {
-    CandidatePair& c = out.pairs[k];
+    CandidatePair& c = out->pairs[first + k];
     c.source = src[pairs[k].first];
     c.target = tgt[pairs[k].second];
     if (!votes.empty()) c.votes = votes[pairs[k].first][pairs[k].second];
     c.matches = matchFeatures(*tgt_features[pairs[k].second], *src_features[pairs[k].first], options_.matching);
   }
-  out.features_ms = msSince(t);
+  out->features_ms += msSince(t);
 
   t = Clock::now();
-  for (CandidatePair& c : out.pairs) {
+  for (std::size_t k = first; k < out->pairs.size(); ++k) {
+    CandidatePair& c = out->pairs[k];
     if (static_cast<int>(c.matches.size()) < options_.matching.min_matches) {
       c.pose.status = Status::kNotEnoughMatches;
       c.pose.message = std::to_string(c.matches.size()) + " feature matches < matching.min_matches " +
                        std::to_string(options_.matching.min_matches);
       continue;
     }
-    c.pose = keyframePairPose(c.matches, target.camera, source.camera, options_.relative_pose);
+    c.pose = keyframePairPose(c.matches, target_camera, source_camera, options_.relative_pose);
   }
-  out.relative_pose_ms = msSince(t);
-  std::stable_sort(out.pairs.begin(), out.pairs.end(), [](const CandidatePair& a, const CandidatePair& b) {
+  out->relative_pose_ms += msSince(t);
+  std::stable_sort(out->pairs.begin(), out->pairs.end(), [](const CandidatePair& a, const CandidatePair& b) {
     const bool va = a.pose.status == Status::kOk, vb = b.pose.status == Status::kOk;
     if (va != vb) return va;
     if (va) return a.pose.inlier_count > b.pose.inlier_count;
     return a.matches.size() > b.matches.size();
   });
-  for (const CandidatePair& c : out.pairs) out.verified += c.pose.status == Status::kOk ? 1 : 0;
-  return out;
+  out->verified = 0;
+  for (const CandidatePair& c : out->pairs) out->verified += c.pose.status == Status::kOk ? 1 : 0;
 }
 
 }  // namespace pcr_pro

@@ -35,21 +35,38 @@ Matrix7d informationOf(const Matrix7d& cov, int d) {
 }
 
 // Fraction of (a sample of) `points` mapped by `map` that have a neighbour in `tree` within
-// `radius` (distances in the tree's units times `to_units`).
-double coveredFraction(const Cloud& points, const Sim3& map, const KdTree& tree, double radius) {
+// `radius`, among the points that `map` puts inside `region` (all of them when its radius is 0).
+double coveredFraction(const Cloud& points, const Sim3& map, const KdTree& tree, double radius,
+                       const OverlapRegion& region) {
   const Eigen::Index n = points.cols();
   if (n == 0 || tree.size() == 0) return 0.0;
-  const Eigen::Index step = std::max<Eigen::Index>(1, n / kOverlapSamples);
-  Eigen::Index inside = 0, total = 0;
+  std::vector<Eigen::Vector3d> mapped;
+  const double region2 = region.radius * region.radius;
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const Eigen::Vector3d y = map.apply(Eigen::Vector3d(points.col(i)));
+    if (region.radius == 0.0 || (y - region.centre).squaredNorm() <= region2) mapped.push_back(y);
+  }
+  if (mapped.empty()) return 0.0;
+  const std::size_t step = std::max<std::size_t>(1, mapped.size() / kOverlapSamples);
+  std::size_t inside = 0, total = 0;
   const double r2 = radius * radius;
-  for (Eigen::Index i = 0; i < n; i += step, ++total) {
+  for (std::size_t i = 0; i < mapped.size(); i += step, ++total) {
     double d2 = 0.0;
-    if (tree.nearest(map.apply(Eigen::Vector3d(points.col(i))), &d2) >= 0 && d2 <= r2) ++inside;
+    if (tree.nearest(mapped[i], &d2) >= 0 && d2 <= r2) ++inside;
   }
   return static_cast<double>(inside) / static_cast<double>(total);
 }
 
 }  // namespace
+
+OverlapRegion overlapRegion(const std::vector<PointMatch3>& matches) {
+  OverlapRegion region;
+  if (matches.size() < 3) return region;
+  for (const PointMatch3& m : matches) region.centre += m.target;
+  region.centre /= static_cast<double>(matches.size());
+  for (const PointMatch3& m : matches) region.radius = std::max(region.radius, (m.target - region.centre).norm());
+  return region;
+}
 
 MapRegistration::MapRegistration(const RegistrationOptions& options, bool estimate_scale)
     : options_(options), estimate_scale_(estimate_scale) {
@@ -76,12 +93,16 @@ std::string MapRegistration::setClouds(const Cloud& source, const Cloud& target)
   return "";
 }
 
-double MapRegistration::overlap(const Sim3& s, double factor) const {
+double MapRegistration::overlap(const Sim3& s, double factor, const OverlapRegion& region) const {
   if (!target_tree_) return 0.0;
   const double radius = factor * std::max(target_spacing_, source_spacing_ * s.scale());
-  const double source_part = coveredFraction(source_, s, *target_tree_, radius);
-  // Target points towards the source: in source units the radius shrinks by the scale.
-  const double target_part = coveredFraction(target_, s.inverse(), *source_tree_, radius / s.scale());
+  const double source_part = coveredFraction(source_, s, *target_tree_, radius, region);
+  // Target points towards the source: in source units the radius and the region shrink by the
+  // scale.
+  OverlapRegion in_source;
+  in_source.centre = s.inverse().apply(region.centre);
+  in_source.radius = region.radius / s.scale();
+  const double target_part = coveredFraction(target_, s.inverse(), *source_tree_, radius / s.scale(), in_source);
   return std::max(source_part, target_part);
 }
 

@@ -57,6 +57,8 @@ KeyframeDepthOptions loadKeyframeDepth(const YAML::Node& node, const std::string
   b.get("max_depth", &o.max_depth);
   b.get("max_cloud_points_projected", &o.max_cloud_points_projected);
   b.get("depth_consistency", &o.depth_consistency);
+  b.get("spatial_sigma_px", &o.spatial_sigma_px);
+  b.get("max_relative_stddev", &o.max_relative_stddev);
   b.finish();
   validateIn(o, origin);
   return o;
@@ -84,6 +86,7 @@ MergeGateOptions loadGates(const YAML::Node& node, const std::string& origin) {
   b.get("refine_scale", &o.refine_scale);
   b.get("max_candidate_pairs", &o.max_candidate_pairs);
   b.get("pair_consistency_chi2", &o.pair_consistency_chi2);
+  b.get("local_keyframes", &o.local_keyframes);
   b.get("refinement_agreement_chi2", &o.refinement_agreement_chi2);
   b.get("overlap_distance_factor", &o.overlap_distance_factor);
   b.get("min_overlap", &o.min_overlap);
@@ -109,6 +112,7 @@ InputLimits loadLimits(const YAML::Node& node, const std::string& origin) {
 
 void validate(const MergeGateOptions& o) {
   if (!(o.max_candidate_pairs >= 0)) throw InputError("merge.max_candidate_pairs must be >= 0");
+  if (o.local_keyframes < 0) throw InputError("merge.local_keyframes must be >= 0");
   if (!(o.pair_consistency_chi2 > 0.0) || !std::isfinite(o.pair_consistency_chi2)) {
     throw InputError("merge.pair_consistency_chi2 must be > 0");
   }

@@ -2,9 +2,11 @@
 
 #include <Eigen/Cholesky>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <sstream>
+#include <utility>
 
 namespace pcr_pro {
 namespace {
@@ -14,6 +16,37 @@ std::string fmt(double v, int precision = 3) {
   os.precision(precision);
   os << v;
   return os.str();
+}
+
+// A refinement this many times farther from the keyframe estimate than the agreement gate makes
+// the merge refuse: at twice the gate's Mahalanobis length the two estimates exclude each other
+// at any reasonable confidence, so at least one is wrong and the data cannot say which.
+constexpr double kRefuseFactor = 4.0;
+// The clouds prefer the refined estimate when its overlap exceeds the keyframe estimate's by this
+// factor: the overlap of a correct alignment varies by a few percent with the estimate's noise,
+// a wrong one loses a large part of it.
+constexpr double kCloudPreference = 1.2;
+
+// RMS distance [target units] between where two similarities put the pooled keyframe matches'
+// source points.
+double moveOfMatches(const std::vector<PointMatch3>& matches, const Sim3& a, const Sim3& b) {
+  double sum = 0.0;
+  for (const PointMatch3& m : matches) sum += (a.apply(m.source) - b.apply(m.source)).squaredNorm();
+  return matches.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(matches.size()));
+}
+
+// How far the refinement moves the keyframe matches from the keyframe estimate, and the farthest
+// any used pair's own estimate moves them. The refinement and the pooled keyframe estimate both
+// describe the overlap as a whole; a refinement beyond every pair's own similarity is not
+// supported by any of them (on the real LSD-SLAM maps, whose drifting semi-dense clouds the ICP
+// does not register, it converged in some runs 10 deg away from the keyframe estimate, twice the
+// farthest pair, with a keyframe covariance wide enough for the chi-square test to pass it).
+std::pair<double, double> pairSpread(const KeyframeEstimate& keyframes, const Sim3& refined) {
+  double spread = 0.0;
+  for (const PairEvidence& e : keyframes.pairs) {
+    if (e.used) spread = std::max(spread, moveOfMatches(keyframes.matches, e.estimate, keyframes.estimate));
+  }
+  return {moveOfMatches(keyframes.matches, refined, keyframes.estimate), spread};
 }
 
 }  // namespace
@@ -37,6 +70,10 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
       why = "the refinement disagrees with the keyframe matches (squared Mahalanobis distance " +
             fmt(v.refinement_chi2) + " > merge.refinement_agreement_chi2 " + fmt(options_.refinement_agreement_chi2) +
             ")";
+    } else if (const auto [moved, spread] = pairSpread(keyframes, refinement.estimate);
+               keyframes.used_pairs >= 2 && moved > spread) {
+      why = "the refinement moved the keyframe matches by " + fmt(moved) +
+            " target units (RMS), farther than any used keyframe pair's own estimate does (" + fmt(spread) + ")";
     } else if (v.rotation_correction_deg > options_.max_icp_rotation_correction_deg) {
       why = "the refinement rotated the keyframe estimate by " + fmt(v.rotation_correction_deg) +
             " deg > merge.max_icp_rotation_correction_deg " + fmt(options_.max_icp_rotation_correction_deg);
@@ -54,12 +91,48 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
     // how much the similarity varies over the overlap (measured between the keyframe pairs): the
     // edge stands for the similarity local to its anchor keyframes.
     v.estimate = refinement.estimate;
+    // The refinement estimates the similarity of the whole overlap; the edge is attached to one
+    // keyframe pair, where the similarity differs from the overlap's by the between-pair spread
+    // (each map's scale drift), as for the keyframe estimate. And the refinement moved the
+    // keyframe estimate, which measures that pair's surroundings, by d: against the local
+    // similarity the move is part of the error (on the simulator's drift worlds the refined scale
+    // lies 0.4-1.6 % from the anchor pair's local truth, the keyframe estimate 0.1-0.9 %).
+    const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
     v.covariance = refinement.covariance * std::max(1.0, v.refinement_chi2 / 7.0) + keyframes.between;
+    v.covariance += d * d.transpose();
   } else {
     v.estimate = keyframes.estimate;
     v.covariance = keyframes.covariance;
+    if (refined) {
+      // Two estimates disagree and the keyframe one is reported: its covariance must cover the
+      // other (the truth may lie anywhere between them). Past a wide disagreement neither is
+      // trusted: refused, not merged wrongly.
+      if (v.refinement_chi2 > kRefuseFactor * options_.refinement_agreement_chi2) {
+        v.status = Status::kIcpNotConverged;
+        v.message = "refused: the refinement and the keyframe matches disagree far beyond their uncertainty (" +
+                    why + "; rotation " + fmt(v.rotation_correction_deg) + " deg, scale " +
+                    fmt(100 * v.scale_disagreement) + " % apart)";
+        v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor);
+        return v;
+      }
+      // The clouds' own vote: when they fit clearly better at the refined estimate, the keyframe
+      // evidence is the suspect one (wide-baseline pairs with few inliers can all be wrong alike),
+      // and keeping it would merge wrongly: refused.
+      const double overlap_keyframes = registration.overlap(keyframes.estimate, options_.overlap_distance_factor);
+      const double overlap_refined = registration.overlap(refinement.estimate, options_.overlap_distance_factor);
+      if (overlap_refined > kCloudPreference * overlap_keyframes) {
+        v.status = Status::kIcpNotConverged;
+        v.message = "refused: " + why + ", and the clouds fit the refined estimate better (overlap " +
+                    fmt(100 * overlap_refined) + " % against " + fmt(100 * overlap_keyframes) +
+                    " % at the keyframe estimate): the keyframe evidence is not trusted";
+        v.overlap = overlap_keyframes;
+        return v;
+      }
+      const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
+      v.covariance = coveringCovariance(keyframes.covariance, d * d.transpose() + 1e-12 * keyframes.covariance);
+    }
   }
-  v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor);
+  v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor, overlapRegion(keyframes.matches));
   const std::string kept = v.refinement_kept ? "refined estimate" : "keyframe estimate kept: " + why;
   if (v.overlap < options_.min_overlap) {
     v.status = Status::kNoOverlap;

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <sstream>
+#include <stdexcept>
 
 #include "pcr_pro/registration/scale_detection.h"
 
@@ -63,6 +64,26 @@ void reportPairs(const KeyframeEstimate& kf, RegistrationReport* rep) {
   }
 }
 
+// The reported similarity between the anchor keyframes (see KeyframeEdge).
+KeyframeEdge keyframeEdge(const AgentMap& source, const AgentMap& target, const PairEvidence& anchor,
+                          const Sim3& target_source, const Matrix7d& covariance) {
+  const auto pose = [](const AgentMap& map, long id) {
+    for (const MapKeyframe& kf : map.keyframes) {
+      if (kf.id == id) return kf.pose;
+    }
+    throw std::logic_error("anchor keyframe " + std::to_string(id) + " is not in its map");
+  };
+  KeyframeEdge e;
+  e.source_keyframe = anchor.source_keyframe;
+  e.target_keyframe = anchor.target_keyframe;
+  const Sim3 target_inverse = pose(target, anchor.target_keyframe).inverse();
+  e.transform = target_inverse * target_source * pose(source, anchor.source_keyframe);
+  const Matrix7d ad = similarityAdjoint(target_inverse);
+  e.covariance = ad * covariance * ad.transpose();
+  e.covariance = 0.5 * (e.covariance + e.covariance.transpose()).eval();
+  return e;
+}
+
 }  // namespace
 
 MergePipeline::MergePipeline(const MergeOptions& options)
@@ -113,6 +134,7 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   reportPairs(kf, &rep);
   diag.used_pairs = kf.used_pairs;
   diag.dropped_pairs = kf.dropped_pairs;
+  diag.distant_pairs = kf.distant_pairs;
   if (kf.status != Status::kOk) return finish(kf.status, kf.message);
   const PairEvidence& anchor = kf.pairs[static_cast<std::size_t>(kf.anchor)];
   rep.source_keyframe = anchor.source_keyframe;
@@ -123,6 +145,8 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   diag.keyframe_matches = static_cast<int>(kf.matches.size());
   diag.initial = kf.estimate;
   diag.keyframe_covariance = kf.covariance;
+  diag.keyframe_mean_covariance = kf.mean_covariance;
+  diag.between_pairs = kf.between;
   diag.kalman_scale = kf.estimate.scale();
   diag.kalman_scale_stddev = kf.estimate.scale() * std::sqrt(std::max(0.0, kf.covariance(6, 6)));
   rep.keyframe_transform = kf.estimate;
@@ -184,6 +208,7 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   }
   rep.covariance = cov;
   rep.information = info;
+  rep.keyframe_edge = keyframeEdge(source, target, anchor, verdict.estimate, verdict.covariance);
   return finish(Status::kOk, "merged 2 maps: " + std::to_string(kf.used_pairs) + " keyframe pair(s) (anchor source " +
                                  std::to_string(anchor.source_keyframe) + " / target " +
                                  std::to_string(anchor.target_keyframe) + ", " + std::to_string(anchor.inliers) +

@@ -101,6 +101,7 @@ IcpOptions loadIcp(const YAML::Node& node, const std::string& origin) {
     Block b(icp.child("outlier_rejection"), "icp.outlier_rejection", origin);
     b.get("max_correspondence_distance", &o.max_correspondence_distance);
     b.get("reciprocal", &o.reciprocal);
+    b.get("symmetric", &o.symmetric);
     b.get("reciprocal_tolerance", &o.reciprocal_tolerance);
     b.get("adaptive_distance_factor", &o.adaptive_distance_factor);
     b.get("trim_ratio", &o.trim_ratio);

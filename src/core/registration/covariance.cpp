@@ -405,6 +405,9 @@ CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3
     sigma2 = std::max(sigma2, std::pow(spacing / kNoiseFloorPerSpacing, 2));
   }
   res.noise_stddev = std::sqrt(sigma2);
+  // Correspondences that measure the same surfaces twice (symmetric matching) carry the
+  // information once.
+  sigma2 *= std::max(1.0, matches.redundancy);
 
   // Degeneracy from the geometric information over the pose (and scale) directions.
   Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> oeig(obs.topLeftCorner(d, d));

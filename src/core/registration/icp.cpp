@@ -39,6 +39,35 @@ double median(std::vector<double> v) {
   return *mid;
 }
 
+// The fixed and adaptive distance gates and the trim, on candidate matches (target < 0: rejected).
+std::vector<Match> gateMatches(const std::vector<Match>& all, const IcpOptions& o, double spacing) {
+  std::vector<Match> kept;
+  kept.reserve(all.size());
+  const double max_d2 = o.max_correspondence_distance > 0.0
+                            ? o.max_correspondence_distance * o.max_correspondence_distance
+                            : std::numeric_limits<double>::infinity();
+  for (const Match& m : all) {
+    if (m.target >= 0 && m.source >= 0 && m.d2 <= max_d2) kept.push_back(m);
+  }
+  if (o.adaptive_distance_factor > 0.0 && !kept.empty()) {
+    std::vector<double> d(kept.size());
+    for (std::size_t k = 0; k < kept.size(); ++k) d[k] = std::sqrt(kept[k].d2);
+    const double gate = o.adaptive_distance_factor * std::max(1.4826 * median(d), spacing);
+    const double gate2 = gate * gate;
+    kept.erase(std::remove_if(kept.begin(), kept.end(), [gate2](const Match& m) { return m.d2 > gate2; }), kept.end());
+  }
+  if (o.trim_ratio < 1.0 && !kept.empty()) {
+    const auto keep_n = std::max<std::size_t>(
+        1, static_cast<std::size_t>(std::ceil(o.trim_ratio * static_cast<double>(kept.size()))));
+    if (keep_n < kept.size()) {
+      std::nth_element(kept.begin(), kept.begin() + static_cast<std::ptrdiff_t>(keep_n - 1), kept.end(),
+                       [](const Match& a, const Match& b) { return a.d2 < b.d2; });
+      kept.resize(keep_n);
+    }
+  }
+  return kept;
+}
+
 // Nearest neighbour of every transformed source point, then the overlap-aware checks
 // (reciprocal, fixed and adaptive distance gates) and the trim. Dynamic chunks: a core busy with
 // another process (SLAM runs beside us) then slows the loop down to one thread's speed instead of
@@ -62,31 +91,80 @@ std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, c
     }
     all[static_cast<std::size_t>(i)] = Match{i, j, d2, 1.0};
   }
-  std::vector<Match> kept;
-  kept.reserve(all.size());
-  const double max_d2 = o.max_correspondence_distance > 0.0
-                            ? o.max_correspondence_distance * o.max_correspondence_distance
-                            : std::numeric_limits<double>::infinity();
-  for (const Match& m : all) {
-    if (m.target >= 0 && m.d2 <= max_d2) kept.push_back(m);
+  return gateMatches(all, o, ctx.spacing);
+}
+
+// Symmetric matching: the nearest moved source point of each of the given target points, with
+// the same checks mirrored (the source point's own nearest target point must be about as close).
+// A target point beyond the source's border pulls the source outwards as a source point beyond
+// the target's border pulls it inwards: together the border pulls cancel.
+std::vector<Match> reverseMatchAndReject(const Cloud& moved, const MatchContext& ctx, const KdTree& source_tree,
+                                         const std::vector<Eigen::Index>& targets, const IcpOptions& o) {
+  const auto n = static_cast<Eigen::Index>(targets.size());
+  std::vector<Match> all(targets.size());
+  const Sim3 inverse = ctx.pose.inverse();
+  const double tolerance = o.reciprocal_tolerance * ctx.spacing;
+  const Cloud& target = ctx.target.points();
+#pragma omp parallel for schedule(dynamic, 256) if (n >= 1024)
+  for (Eigen::Index k = 0; k < n; ++k) {
+    const Eigen::Index j = targets[static_cast<std::size_t>(k)];
+    double d2s = 0.0;
+    Eigen::Index i = source_tree.nearest(inverse.apply(Eigen::Vector3d(target.col(j))), &d2s);
+    const double d2 = d2s * ctx.pose.scale() * ctx.pose.scale();
+    if (i >= 0 && o.reciprocal) {
+      double back2 = 0.0;
+      ctx.target.nearest(moved.col(i), &back2);
+      if (std::sqrt(d2) > std::sqrt(back2) + tolerance) i = -1;
+    }
+    all[static_cast<std::size_t>(k)] = Match{i, j, d2, 1.0};
   }
-  if (o.adaptive_distance_factor > 0.0 && !kept.empty()) {
-    std::vector<double> d(kept.size());
-    for (std::size_t k = 0; k < kept.size(); ++k) d[k] = std::sqrt(kept[k].d2);
-    const double gate = o.adaptive_distance_factor * std::max(1.4826 * median(d), ctx.spacing);
-    const double gate2 = gate * gate;
-    kept.erase(std::remove_if(kept.begin(), kept.end(), [gate2](const Match& m) { return m.d2 > gate2; }), kept.end());
+  return gateMatches(all, o, ctx.spacing);
+}
+
+// Point-to-plane correspondences of one iteration, forward (target normals) and reverse (the
+// source points' normals, rotated into the target frame) together.
+struct PlaneSet {
+  std::vector<Eigen::Index> source, target;
+  std::vector<Eigen::Vector3d> normal;
+  std::vector<double> weight, d2;
+  double spread = 0.0;
+  std::size_t size() const { return source.size(); }
+};
+
+PlaneSet planeSet(const std::vector<Match>& forward, const Cloud& target_normals, const std::vector<Match>& reverse,
+                  const Cloud* source_normals, const Eigen::Matrix3d& rotation) {
+  PlaneSet p;
+  for (const Match& m : forward) {
+    p.source.push_back(m.source);
+    p.target.push_back(m.target);
+    p.normal.push_back(target_normals.col(m.target));
+    p.weight.push_back(1.0);
+    p.d2.push_back(m.d2);
   }
-  if (o.trim_ratio < 1.0 && !kept.empty()) {
-    const auto keep_n = std::max<std::size_t>(
-        1, static_cast<std::size_t>(std::ceil(o.trim_ratio * static_cast<double>(kept.size()))));
-    if (keep_n < kept.size()) {
-      std::nth_element(kept.begin(), kept.begin() + static_cast<std::ptrdiff_t>(keep_n - 1), kept.end(),
-                       [](const Match& a, const Match& b) { return a.d2 < b.d2; });
-      kept.resize(keep_n);
+  if (source_normals) {
+    for (const Match& m : reverse) {
+      p.source.push_back(m.source);
+      p.target.push_back(m.target);
+      p.normal.push_back(rotation * source_normals->col(m.source));
+      p.weight.push_back(1.0);
+      p.d2.push_back(m.d2);
     }
   }
-  return kept;
+  return p;
+}
+
+// The kernel's IRLS weights on a plane set (see applyKernel()).
+void applyPlaneKernel(const Cloud& moved, const Cloud& target, const IcpOptions& o, double spacing, PlaneSet* p) {
+  if (p->size() == 0) return;
+  std::vector<double> r(p->size());
+  for (std::size_t k = 0; k < p->size(); ++k) r[k] = p->normal[k].dot(moved.col(p->source[k]) - target.col(p->target[k]));
+  const double center = median(r);
+  std::vector<double> dev(r.size());
+  for (std::size_t k = 0; k < r.size(); ++k) dev[k] = std::abs(r[k] - center);
+  p->spread = std::max(1.4826 * median(dev), 0.01 * spacing);
+  if (o.robust_kernel == RobustKernel::kNone || !(p->spread > 0.0)) return;
+  const double c2 = std::pow(o.kernel_width * p->spread, 2);
+  for (std::size_t k = 0; k < p->size(); ++k) p->weight[k] = 1.0 / (1.0 + r[k] * r[k] / c2);
 }
 
 // Residual of a correspondence for the kernel: signed point-to-plane distance, or the 3D
@@ -155,23 +233,23 @@ void addAnchors(const std::vector<PointMatch3>& anchors, const Sim3& current, co
 // One weighted point-to-plane Gauss-Newton step (residuals weighted by w / σ², σ the residual
 // spread), linearised about the centroid c of the moved points, with the anchors. Returns the
 // incremental similarity in the target frame.
-Sim3 pointToPlaneStep(const Cloud& moved, const Cloud& target, const Cloud& normals, const std::vector<Match>& m,
-                      double spread, const std::vector<PointMatch3>* anchors, const Sim3& current, bool with_scale,
+Sim3 pointToPlaneStep(const Cloud& moved, const Cloud& target, const PlaneSet& m,
+                      const std::vector<PointMatch3>* anchors, const Sim3& current, bool with_scale,
                       double max_log_scale_step) {
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  for (const Match& k : m) c += moved.col(k.source);
+  for (Eigen::Index i : m.source) c += moved.col(i);
   c /= static_cast<double>(m.size());
   Eigen::Matrix<double, 7, 7> h = Eigen::Matrix<double, 7, 7>::Zero();
   Eigen::Matrix<double, 7, 1> g = Eigen::Matrix<double, 7, 1>::Zero();
-  const double inv_var = 1.0 / (spread * spread);
-  for (const Match& k : m) {
-    const Eigen::Vector3d y = moved.col(k.source);
-    const Eigen::Vector3d n = normals.col(k.target);
+  const double inv_var = 1.0 / (m.spread * m.spread);
+  for (std::size_t k = 0; k < m.size(); ++k) {
+    const Eigen::Vector3d y = moved.col(m.source[k]);
+    const Eigen::Vector3d& n = m.normal[k];
     const Eigen::Vector3d a = y - c;
     Eigen::Matrix<double, 7, 1> j;
     j << n, a.cross(n), n.dot(a);
-    const double r = n.dot(y - target.col(k.target));
-    const double w = k.weight * inv_var;
+    const double r = n.dot(y - target.col(m.target[k]));
+    const double w = m.weight[k] * inv_var;
     h.noalias() += w * j * j.transpose();
     g.noalias() += w * j * r;
   }
@@ -227,6 +305,21 @@ class LazyNormals {
       if (!known) {
         known = 1;
         missing.push_back(m.target);
+      }
+    }
+    if (missing.empty()) return;
+    const Cloud fresh = estimateNormalsAt(tree_, missing, k_);
+    for (std::size_t i = 0; i < missing.size(); ++i) normals_.col(missing[i]) = fresh.col(static_cast<Eigen::Index>(i));
+  }
+
+  // Makes sure the given points have their normals.
+  void ensureIndices(const std::vector<Eigen::Index>& indices) {
+    std::vector<Eigen::Index> missing;
+    for (Eigen::Index i : indices) {
+      char& known = known_[static_cast<std::size_t>(i)];
+      if (!known) {
+        known = 1;
+        missing.push_back(i);
       }
     }
     if (missing.empty()) return;
@@ -376,6 +469,14 @@ struct LevelEnv {
   const std::vector<PointMatch3>* anchors = nullptr;
 };
 
+// Indices of about `count` target points spread evenly over the cloud (symmetric matching).
+std::vector<Eigen::Index> targetSample(Eigen::Index size, Eigen::Index count) {
+  std::vector<Eigen::Index> out;
+  const double step = count > 0 ? std::max(1.0, static_cast<double>(size) / static_cast<double>(count)) : 1.0;
+  for (double x = 0.0; x < static_cast<double>(size); x += step) out.push_back(static_cast<Eigen::Index>(x));
+  return out;
+}
+
 // Iterates match / reject / weight / minimise on `source` from `*current` until the differential
 // check passes at `tolerance` times the configured thresholds, or the iteration limit.
 LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double tolerance, int iteration_offset,
@@ -387,12 +488,21 @@ LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double toler
   const Eigen::Vector3d source_centroid = source.rowwise().mean();
   const double min_scale = env.min_scale, max_scale = env.max_scale;
   const double target_radius = env.target_radius;
-  // The reciprocal check needs the level's own source points in a tree.
+  // The reciprocal check and symmetric matching need the level's own source points in a tree;
+  // symmetric matching their normals too, and a sample of the target of the level's size.
+  const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
+  const bool symmetric = o.symmetric && plane;
   std::unique_ptr<KdTree> source_tree;
+  std::unique_ptr<LazyNormals> source_normals;
+  std::vector<Eigen::Index> reverse_targets;
   double source_spacing = 0.0;
-  if (o.reciprocal) {
+  if (o.reciprocal || symmetric) {
     source_tree = std::make_unique<KdTree>(source);
     source_spacing = medianSpacing(*source_tree);
+  }
+  if (symmetric) {
+    source_normals = std::make_unique<LazyNormals>(*source_tree, o.normal_neighbors);
+    reverse_targets = targetSample(target.cols(), source.cols());
   }
   Eigen::Matrix<double, 7, 1> previous_twist = Eigen::Matrix<double, 7, 1>::Zero();
   bool has_previous = false, extrapolated = false;
@@ -421,9 +531,17 @@ LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double toler
       }
     } else {
       env.normals.ensure(m);
-      const double spread = applyKernel(moved, target, &env.normals.normals(), o, ctx.spacing, &m);
-      step = pointToPlaneStep(moved, target, env.normals.normals(), m, spread, env.anchors, *current,
-                              o.estimate_scale, max_log_step);
+      std::vector<Match> reverse;
+      if (symmetric) {
+        reverse = reverseMatchAndReject(moved, ctx, *source_tree, reverse_targets, o);
+        std::vector<Eigen::Index> used;
+        for (const Match& r : reverse) used.push_back(r.source);
+        source_normals->ensureIndices(used);
+      }
+      PlaneSet set = planeSet(m, env.normals.normals(), reverse, symmetric ? &source_normals->normals() : nullptr,
+                              current->rotation());
+      applyPlaneKernel(moved, target, o, ctx.spacing, &set);
+      step = pointToPlaneStep(moved, target, set, env.anchors, *current, o.estimate_scale, max_log_step);
     }
     Sim3 next = step * *current;
     if (!next.matrix().allFinite()) {
@@ -545,42 +663,64 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   }
   const bool converged = fine.converged;
 
-  // Final correspondences (and their weights) at the converged pose.
+  // Final correspondences (and their weights) at the converged pose, both directions when
+  // symmetric, in the form the covariance takes: source point, target point, residual normal.
   const Cloud moved = current.apply(source);
+  const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
+  const bool symmetric = o.symmetric && plane;
   std::unique_ptr<KdTree> source_tree;
   double source_spacing = 0.0;
-  if (o.reciprocal) {
+  if (o.reciprocal || symmetric) {
     source_tree = std::make_unique<KdTree>(source);
     source_spacing = medianSpacing(*source_tree);
   }
   const MatchContext ctx{tree, source_tree.get(), current, std::max(env.target_spacing, source_spacing * current.scale())};
   std::vector<Match> m = matchAndReject(moved, ctx, o);
-  // Point-to-plane uses them; the covariance's observability check needs them for both metrics.
+  // The covariance's observability check needs target normals for both metrics.
   normals.ensure(m);
-  const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
-  const double spread = applyKernel(moved, target, plane ? &normals.normals() : nullptr, o, ctx.spacing, &m);
+  std::vector<Match> reverse;
+  std::unique_ptr<LazyNormals> source_normals;
+  if (symmetric) {
+    reverse = reverseMatchAndReject(moved, ctx, *source_tree, targetSample(target.cols(), source.cols()), o);
+    source_normals = std::make_unique<LazyNormals>(*source_tree, o.normal_neighbors);
+    std::vector<Eigen::Index> used;
+    for (const Match& r : reverse) used.push_back(r.source);
+    source_normals->ensureIndices(used);
+  }
+  PlaneSet set = planeSet(m, normals.normals(), reverse, symmetric ? &source_normals->normals() : nullptr,
+                          current.rotation());
+  double spread = 0.0;
+  if (plane) {
+    applyPlaneKernel(moved, target, o, ctx.spacing, &set);
+    spread = set.spread;
+  } else {
+    spread = applyKernel(moved, target, nullptr, o, ctx.spacing, &m);
+    for (std::size_t k = 0; k < m.size(); ++k) set.weight[k] = m[k].weight;
+  }
   result.transform = current;
   result.iterations = iter;
   result.converged = converged;
-  result.correspondences = static_cast<int>(m.size());
+  result.correspondences = static_cast<int>(set.size());
   Correspondences& c = result.matches;
-  c.source.resize(3, static_cast<Eigen::Index>(m.size()));
-  c.target.resize(3, static_cast<Eigen::Index>(m.size()));
-  c.target_normals.resize(3, static_cast<Eigen::Index>(m.size()));
-  c.weights.resize(static_cast<Eigen::Index>(m.size()));
+  const auto count = static_cast<Eigen::Index>(set.size());
+  c.source.resize(3, count);
+  c.target.resize(3, count);
+  c.target_normals.resize(3, count);
+  c.weights.resize(count);
   c.residual_scale = spread;
   c.spacing = ctx.spacing;
+  c.redundancy = symmetric && !reverse.empty() ? 2.0 : 1.0;
   double sum_d2 = 0.0;
-  for (std::size_t k = 0; k < m.size(); ++k) {
+  for (std::size_t k = 0; k < set.size(); ++k) {
     const auto col = static_cast<Eigen::Index>(k);
-    c.source.col(col) = source.col(m[k].source);
-    c.target.col(col) = target.col(m[k].target);
-    c.target_normals.col(col) = normals.normals().col(m[k].target);
-    c.weights(col) = m[k].weight;
-    sum_d2 += m[k].d2;
+    c.source.col(col) = source.col(set.source[k]);
+    c.target.col(col) = target.col(set.target[k]);
+    c.target_normals.col(col) = set.normal[k];
+    c.weights(col) = set.weight[k];
+    sum_d2 += set.d2[k];
   }
-  result.fitness_rmse = m.empty() ? 0.0 : std::sqrt(sum_d2 / static_cast<double>(m.size()));
-  if (static_cast<int>(m.size()) < o.min_correspondences) {
+  result.fitness_rmse = set.size() == 0 ? 0.0 : std::sqrt(sum_d2 / static_cast<double>(set.size()));
+  if (static_cast<int>(set.size()) < o.min_correspondences) {
     result.status = Status::kIcpNotConverged;
     result.message = "icp: too few correspondences at the final pose";
   } else if (!converged) {

@@ -1,0 +1,317 @@
+// Merges of REAL LSD-SLAM output (data set lsd_slam_7scenes: the original LSD-SLAM run twice on
+// real 7-Scenes images, its messages recorded as published). The bags are read with the rosbag
+// API and decoded with the node's own conversions into AgentStores, as merge_node does, and the
+// agents' maps are merged with MergePipeline (no ROS master). The truth is truth.yaml's
+// similarity of B's map into A's where the maps overlap (overlap_local_recommended), known to
+// about +-3 deg and +-25 % in scale because each LSD map's scale drifts (SOURCE.txt), and the
+// true relative poses of the 13 overlapping keyframe pairs.
+//
+// Also a merge of the LSD bag of the build's drifting simulated world (build/sim/lsd_drift,
+// `pcr_pro_simulate --bags --scale-drift 0.05 --bend-deg 2`; $PCR_PRO_SIM_LSD_WORLD names another)
+// against its exact local truth.
+#include <gtest/gtest.h>
+#include <rosbag/bag.h>
+#include <rosbag/view.h>
+#include <yaml-cpp/yaml.h>
+
+#include <Eigen/Cholesky>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "pcr_pro/geometry/similarity_fit.h"
+#include "pcr_pro/merge/agent_store.h"
+#include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/ros/msg_conversion.h"
+#include "common/data_dir.h"
+
+namespace pcr_pro {
+namespace ros_bridge {
+namespace {
+
+using Vector7d = Eigen::Matrix<double, 7, 1>;
+
+double deg(double rad) { return rad * 180.0 / M_PI; }
+
+Sim3 sim3(const YAML::Node& n, const char* quaternion_key) {
+  const YAML::Node q = n[quaternion_key], t = n["t"] ? n["t"] : n["translation"];
+  const double s = n["s"] ? n["s"].as<double>() : (n["scale"] ? n["scale"].as<double>() : 1.0);
+  return Sim3(s, Eigen::Quaterniond(q[3].as<double>(), q[0].as<double>(), q[1].as<double>(), q[2].as<double>()),
+              Eigen::Vector3d(t[0].as<double>(), t[1].as<double>(), t[2].as<double>()));
+}
+
+// One agent's bag decoded as merge_node does: keyframes (isKeyframe) into the store, graph
+// messages move them.
+AgentStore readAgentBag(const std::string& file, const std::string& agent) {
+  AgentStore store(agent + "/map");
+  rosbag::Bag bag(file, rosbag::bagmode::Read);
+  for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
+    if (const auto kf = m.instantiate<lsd_slam_viewer::keyframeMsg>()) {
+      if (kf->isKeyframe) store.setLsdKeyframe(lsdKeyframeFromMsg(*kf));
+    } else if (const auto graph = m.instantiate<lsd_slam_viewer::keyframeGraphMsg>()) {
+      store.updateLsdPoses(lsdGraphFromMsg(*graph).poses);
+    }
+  }
+  return store;
+}
+
+const MapKeyframe& keyframe(const AgentMap& map, long id) {
+  for (const MapKeyframe& kf : map.keyframes) {
+    if (kf.id == id) return kf;
+  }
+  throw std::out_of_range("keyframe " + std::to_string(id));
+}
+
+// Both merges of the real bags, run once for every test of the suite.
+struct RealMerges {
+  std::string skip;  // why the suite is skipped, empty when it runs
+  AgentMap a, b;
+  MergeResult b_into_a, a_into_b;
+  double warm_ms = 0.0;  // b -> a again on the same pipeline (features cached)
+  MergeDiagnostics warm;
+  Sim3 truth;  // S_A_B where the maps overlap
+  std::map<long, Sim3> gt_a, gt_b;  // true camera -> world poses [m]
+  std::vector<std::pair<long, long>> overlap_pairs;  // (A id, B id)
+  double truth_pair_rotation_median_deg = 0.0;
+};
+
+const RealMerges& realMerges() {
+  static const RealMerges r = [] {
+    RealMerges out;
+    const std::string dir = test::dataPath("lsd_slam_7scenes");
+    if (!std::filesystem::exists(dir + "/agent_a.bag") || !std::filesystem::exists(dir + "/truth.yaml")) {
+      out.skip = "no real LSD-SLAM data at " + dir + " (set PCR_PRO_DATA_DIR)";
+      return out;
+    }
+    const YAML::Node truth = YAML::LoadFile(dir + "/truth.yaml");
+    const YAML::Node rec = truth["sim3_agent_b_to_agent_a_alternatives"]["overlap_local_recommended"];
+    out.truth = sim3(rec, "q_xyzw");
+    out.truth_pair_rotation_median_deg = rec["rotation_error_on_overlap_pairs_deg_median"].as<double>();
+    for (const auto& [agent, poses] : {std::make_pair("agent_a", &out.gt_a), std::make_pair("agent_b", &out.gt_b)}) {
+      for (const YAML::Node& k : truth["agents"][agent]["keyframes"]) {
+        (*poses)[k["lsd_id"].as<long>()] = sim3(k["gt_T_world_cam"], "q_xyzw");
+      }
+    }
+    for (const YAML::Node& p : truth["overlap"]["pairs_lsd_id_a_b_dist_m_angle_deg"]) {
+      out.overlap_pairs.emplace_back(p[0].as<long>(), p[1].as<long>());
+    }
+    out.a = readAgentBag(dir + "/agent_a.bag", "agent_a").toAgentMap(LsdFilterOptions());
+    out.b = readAgentBag(dir + "/agent_b.bag", "agent_b").toAgentMap(LsdFilterOptions());
+    // FLANN's randomised trees draw from std::rand: fix it so that a failure reproduces.
+    std::srand(1);
+    MergePipeline pipeline{MergeOptions()};
+    out.b_into_a = pipeline.merge(out.b, out.a, MergeRequest(), "agent_b", "agent_a");
+    out.a_into_b = pipeline.merge(out.a, out.b, MergeRequest(), "agent_a", "agent_b");
+    const auto t0 = std::chrono::steady_clock::now();
+    out.warm = pipeline.merge(out.b, out.a, MergeRequest(), "agent_b", "agent_a").diagnostics;
+    out.warm_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    return out;
+  }();
+  return r;
+}
+
+// Rotation [deg] and log-scale error of S_A_B against the overlap truth, and the scale's
+// relative standard deviation.
+struct Score {
+  double rotation_deg, log_scale, scale_rel_stddev;
+};
+
+Score score(const MergeResult& r, bool inverse, const Sim3& truth) {
+  const Sim3 s_ab = inverse ? r.report.transform->inverse() : *r.report.transform;
+  return {deg(rotationDistance(s_ab.rotation(), truth.rotation())), std::log(s_ab.scale() / truth.scale()),
+          *r.report.scale_stddev / r.report.transform->scale()};
+}
+
+class RealLsdSlam : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (!realMerges().skip.empty()) GTEST_SKIP() << realMerges().skip;
+  }
+};
+
+TEST_F(RealLsdSlam, BothDirectionsMergeNearTheOverlapTruth) {
+  const RealMerges& m = realMerges();
+  for (const auto& [result, inverse, name] : {std::make_tuple(&m.b_into_a, false, "b->a"),
+                                              std::make_tuple(&m.a_into_b, true, "a->b")}) {
+    ASSERT_EQ(result->report.status, Status::kOk) << name << ": " << result->report.message;
+    ASSERT_TRUE(result->report.transform && result->report.scale_stddev && result->report.covariance);
+    const Score e = score(*result, inverse, m.truth);
+    std::printf("%s: rotation %.2f deg, scale %+.1f %% from the overlap truth; scale_stddev %.1f %%; %d pairs used, "
+                "%d dropped, %d far from the best pair, of %d verified\n",
+                name, e.rotation_deg, 100.0 * (std::exp(e.log_scale) - 1.0), 100.0 * e.scale_rel_stddev,
+                result->diagnostics.used_pairs, result->diagnostics.dropped_pairs, result->diagnostics.distant_pairs,
+                result->diagnostics.verified_pairs);
+    RecordProperty(std::string(name) + "_rotation_error_deg", std::to_string(e.rotation_deg));
+    RecordProperty(std::string(name) + "_scale_error_pct", std::to_string(100.0 * (std::exp(e.log_scale) - 1.0)));
+    RecordProperty(std::string(name) + "_scale_stddev_pct", std::to_string(100.0 * e.scale_rel_stddev));
+    EXPECT_LT(e.rotation_deg, 3.0) << name;
+    EXPECT_LT(std::abs(std::exp(e.log_scale) - 1.0), 0.2) << name;
+    // Within 3 standard deviations once the truth's own spread is allowed for: SOURCE.txt pins the
+    // overlap's scale to about +-25 %, read here as two of its standard deviations.
+    const double truth_sd = std::log(1.25) / 2.0;
+    EXPECT_LE(std::abs(e.log_scale), 3.0 * std::hypot(e.scale_rel_stddev, truth_sd)) << name;
+    // And the stddev says something: an edge less certain than the truth's own +-25 % would carry
+    // no information about the scale.
+    EXPECT_LT(e.scale_rel_stddev, 0.25) << name;
+    // Evidence from more than one keyframe pair (issue 13 item 2).
+    EXPECT_GE(result->diagnostics.used_pairs, 2) << name;
+    EXPECT_TRUE(result->report.covariance->allFinite() && result->report.information->allFinite()) << name;
+  }
+}
+
+TEST_F(RealLsdSlam, AToBIsTheInverseOfBToAWithinTheirUncertainty) {
+  const RealMerges& m = realMerges();
+  ASSERT_EQ(m.b_into_a.report.status, Status::kOk);
+  ASSERT_EQ(m.a_into_b.report.status, Status::kOk);
+  // a->b's covariance is about S_B_A = exp(d) S^_B_A in B's frame; inverted,
+  // S_B_A^-1 = exp(-Ad(S^_B_A^-1) d) S^_B_A^-1: it moves into A's frame with that adjoint.
+  const Sim3 s_ab = *m.b_into_a.report.transform, s_ba = *m.a_into_b.report.transform;
+  const Vector7d d = similarityDifference(s_ba.inverse(), s_ab);
+  const Matrix7d ad = similarityAdjoint(s_ba.inverse());
+  const Matrix7d c = m.b_into_a.diagnostics.covariance + ad * m.a_into_b.diagnostics.covariance * ad.transpose();
+  const double chi2 = d.dot(c.ldlt().solve(d));
+  std::printf("a->b inverted vs b->a: %.2f deg, scale %+.1f %%, squared Mahalanobis distance %.2f (7 DoF)\n",
+              deg(d.segment<3>(3).norm()), 100.0 * (std::exp(d(6)) - 1.0), chi2);
+  RecordProperty("inverse_chi2", std::to_string(chi2));
+  // chi2 with 7 DoF, 99.9 %. The two merges share their data, so their errors are positively
+  // correlated and the sum of the covariances overstates the difference's: a lenient bound,
+  // which a merge of different places of the maps (20-26 deg apart here) still fails.
+  EXPECT_LT(chi2, 24.32);
+}
+
+TEST_F(RealLsdSlam, OverlappingKeyframePairsAreScored) {
+  const RealMerges& m = realMerges();
+  ASSERT_EQ(m.b_into_a.report.status, Status::kOk);
+  const Sim3 s_ab = *m.b_into_a.report.transform;
+  std::vector<double> rotation_errors;
+  for (const auto& [ia, ib] : m.overlap_pairs) {
+    // The merge's relative pose of B's keyframe in A's keyframe camera, against the true one.
+    const Sim3 predicted = keyframe(m.a, ia).pose.inverse() * s_ab * keyframe(m.b, ib).pose;
+    const Sim3 truth = m.gt_a.at(ia).inverse() * m.gt_b.at(ib);
+    const double rot = deg(rotationDistance(predicted.rotation(), truth.rotation()));
+    const double dir = deg(std::acos(std::clamp(predicted.translation().normalized().dot(truth.translation().normalized()),
+                                                -1.0, 1.0)));
+    std::printf("pair A%ld-B%ld: rotation error %.2f deg, translation direction error %.1f deg (baseline %.2f m)\n",
+                ia, ib, rot, dir, truth.translation().norm());
+    RecordProperty("pair_A" + std::to_string(ia) + "_B" + std::to_string(ib) + "_rotation_error_deg",
+                   std::to_string(rot));
+    rotation_errors.push_back(rot);
+  }
+  ASSERT_EQ(rotation_errors.size(), 13u);
+  std::sort(rotation_errors.begin(), rotation_errors.end());
+  const double median = rotation_errors[rotation_errors.size() / 2];
+  std::printf("median rotation error over the 13 overlapping pairs: %.2f deg (the truth's own similarity: %.2f)\n",
+              median, m.truth_pair_rotation_median_deg);
+  // The truth's similarity itself errs by a median of 2.63 deg on these pairs (truth.yaml); a merge
+  // within 3 deg of it (the test above) can add at most 3 deg to each.
+  EXPECT_LT(median, m.truth_pair_rotation_median_deg + 3.0);
+}
+
+TEST_F(RealLsdSlam, EdgeBetweenTheAnchorKeyframes) {
+  const RealMerges& m = realMerges();
+  const RegistrationReport& r = m.b_into_a.report;
+  ASSERT_EQ(r.status, Status::kOk);
+  ASSERT_TRUE(r.keyframe_edge);
+  const KeyframeEdge& e = *r.keyframe_edge;
+  EXPECT_EQ(e.source_keyframe, r.source_keyframe.value_or(-1));
+  EXPECT_EQ(e.target_keyframe, r.target_keyframe.value_or(-1));
+  const Sim3 expected = keyframe(m.a, e.target_keyframe).pose.inverse() * *r.transform *
+                        keyframe(m.b, e.source_keyframe).pose;
+  EXPECT_LT((e.transform.matrix() - expected.matrix()).cwiseAbs().maxCoeff(), 1e-9 * expected.matrix().norm());
+  // The covariance moves by a similarity: the scale's variance is unchanged, the rotation's only
+  // rotated (same trace), and it stays symmetric positive definite.
+  const Matrix7d& c = m.b_into_a.diagnostics.covariance;
+  EXPECT_NEAR(e.covariance(6, 6), c(6, 6), 1e-12 * c(6, 6));
+  const double rotation_trace = c.block<3, 3>(3, 3).trace();
+  const double edge_rotation_trace = e.covariance.block<3, 3>(3, 3).trace();
+  EXPECT_NEAR(edge_rotation_trace, rotation_trace, 1e-9 * rotation_trace);
+  EXPECT_EQ(Eigen::LLT<Matrix7d>(e.covariance).info(), Eigen::Success);
+  // The anchor is one of the pairs the edge was made of.
+  bool used = false;
+  for (const KeyframePairReport& p : r.keyframe_pairs) {
+    used = used || (p.used && p.source_keyframe == e.source_keyframe && p.target_keyframe == e.target_keyframe);
+  }
+  EXPECT_TRUE(used);
+}
+
+TEST_F(RealLsdSlam, SecondMergeReusesTheFeatures) {
+  const RealMerges& m = realMerges();
+  std::printf("second merge b->a (features cached): %.0f ms, %d keyframes computed, %d cached\n", m.warm_ms,
+              m.warm.features_computed, m.warm.features_cached);
+  RecordProperty("warm_merge_ms", std::to_string(m.warm_ms));
+  EXPECT_EQ(m.warm.features_computed, 0);
+  EXPECT_EQ(m.warm.features_cached, 28);
+}
+
+// --- a simulator world with LSD-like semi-dense depth and drift, exact truth
+
+Sim3 simTruth(const YAML::Node& n) {
+  const YAML::Node q = n["rotation"], t = n["translation"];
+  return Sim3(n["scale"].as<double>(),
+              Eigen::Quaterniond(q[3].as<double>(), q[0].as<double>(), q[1].as<double>(), q[2].as<double>()),
+              Eigen::Vector3d(t[0].as<double>(), t[1].as<double>(), t[2].as<double>()));
+}
+
+TEST(SimulatedLsdSlam, DriftingMapsMergeToTheAnchorPairsLocalTruth) {
+  // The build's drifting world (build/sim/lsd_drift); $PCR_PRO_SIM_LSD_WORLD names another.
+  const char* env = std::getenv("PCR_PRO_SIM_LSD_WORLD");
+  const std::string dir = env != nullptr && *env != '\0' ? env : PCR_PRO_SIM_LSD_WORLD_DIR;
+  if (dir.empty() || !std::filesystem::exists(dir + "/lsd_slam_two_agents.bag")) {
+    FAIL() << "no simulated LSD world at " << dir << " (built by pcr_pro_sim_worlds)";
+  }
+  std::map<std::string, AgentStore> stores;
+  rosbag::Bag bag(dir + "/lsd_slam_two_agents.bag", rosbag::bagmode::Read);
+  for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
+    const std::string topic = m.getTopic(), agent = topic.substr(1, topic.find('/', 1) - 1);
+    auto it = stores.emplace(agent, AgentStore(agent + "/map")).first;
+    if (const auto kf = m.instantiate<lsd_slam_viewer::keyframeMsg>()) {
+      if (kf->isKeyframe) it->second.setLsdKeyframe(lsdKeyframeFromMsg(*kf));
+    } else if (const auto graph = m.instantiate<lsd_slam_viewer::keyframeGraphMsg>()) {
+      it->second.updateLsdPoses(lsdGraphFromMsg(*graph).poses);
+    }
+  }
+  const YAML::Node truth = YAML::LoadFile(dir + "/truth.yaml");
+  ASSERT_EQ(truth["target"].as<std::string>(), "agent_a");
+  const double drift = truth["agents"]["agent_a"]["scale_drift"].as<double>();
+  const double bend = truth["agents"]["agent_a"]["bend_deg"].as<double>();
+  std::srand(1);
+  const MergeResult r = mergeMaps(stores.at("agent_b").toAgentMap(LsdFilterOptions()),
+                                  stores.at("agent_a").toAgentMap(LsdFilterOptions()), MergeRequest(), MergeOptions());
+  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
+  // The edge's truth: the local similarity of its anchor keyframe pair.
+  Sim3 local;
+  bool found = false;
+  for (const YAML::Node& p : truth["keyframe_pairs"]) {
+    if (p["source"].as<long>() == *r.report.source_keyframe && p["target"].as<long>() == *r.report.target_keyframe) {
+      local = simTruth(p["S_target_source"]);
+      found = true;
+    }
+  }
+  ASSERT_TRUE(found) << "the anchor pair sees no common surface in the truth";
+  const Vector7d d = similarityDifference(*r.report.transform, local);
+  const Matrix7d& c = r.diagnostics.covariance;
+  const double nees6 = d.head<6>().dot(c.topLeftCorner<6, 6>().ldlt().solve(d.head<6>()));
+  const double nees_scale = d(6) * d(6) / c(6, 6);
+  std::printf("simulated (drift %.0f %%, bend %.1f deg): rotation %.3f deg, scale %+.3f %% from the anchor pair's "
+              "local truth; NEES 6-DoF %.1f, scale %.2f\n",
+              100 * drift, bend, deg(d.segment<3>(3).norm()), 100 * (std::exp(d(6)) - 1.0), nees6, nees_scale);
+  // Without drift 0.5 deg / 0.5 % is what the 1 % inverse-depth noise over the ~20 pairs leaves
+  // (0.15 deg / 0.13 % measured on two worlds); the drift makes the local similarity vary along
+  // the paths by up to half the drift and bend between the anchor and the pairs around it.
+  EXPECT_LT(deg(d.segment<3>(3).norm()), 0.5 + 0.5 * bend);
+  EXPECT_LT(std::abs(d(6)), 0.005 + 0.5 * drift);
+  // chi2 99.9 % bounds: 6 DoF 22.46, 1 DoF 10.83.
+  EXPECT_LT(nees6, 22.46);
+  EXPECT_LT(nees_scale, 10.83);
+}
+
+}  // namespace
+}  // namespace ros_bridge
+}  // namespace pcr_pro
