@@ -13,6 +13,7 @@
 #include <sstream>
 
 #include "pcr_pro/geometry/types.h"
+#include "common/data_dir.h"
 #include "suite.h"
 
 using namespace pcr_pro;
@@ -83,6 +84,11 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "pcr_pro_bench_suite: --only: unknown section '%s'\n", item.c_str());
         return usage();
       }
+    }
+    // The real cases are built from the data directory; without them most sections cannot run.
+    if (const auto missing = test::missingRealCase("slambook2/depth")) {
+      std::fprintf(stderr, "pcr_pro_bench_suite: %s\n", missing->c_str());
+      return 2;
     }
     config.self = "/proc/" + std::to_string(getpid()) + "/exe";
     Output out(argv[1]);

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # make test-sanitize: builds the core, the offline tools, every unit test and the ROS-side tests
-# that need no ROS master (message conversions, bad messages and store limits, the shipped bags
+# that need no ROS master (message conversions, bad messages and store limits, the generated world's bags
 # decoded and merged) with AddressSanitizer + UndefinedBehaviorSanitizer (g++,
 # -DPCR_PRO_SANITIZE=ON) in build-asan/ and runs each test executable. Any sanitizer report is
 # fatal (halt_on_error, and -fno-sanitize-recover at compile time), so a finding fails its test

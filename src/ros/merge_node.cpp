@@ -528,6 +528,18 @@ Response MergeNode::merge(const MergeJob& job) {
         result.report.status = Status::kInvalidInput;
         result.report.message = e.what();
       }
+      // The pipeline cached the features of the snapshot's keyframes; those that left the map
+      // while it ran were invalidated before they were stored: forget them now, or the cache
+      // grows with every merge of a streaming agent (the soak test's resident memory).
+      for (const Snapshot* snapshot : {&s, &t}) {
+        std::lock_guard<std::mutex> lock(snapshot->agent->mutex);
+        const std::vector<long> now = snapshot->agent->store.keyframeIds();
+        std::vector<long> left;
+        for (long id : snapshot->store.keyframeIds()) {
+          if (std::find(now.begin(), now.end(), id) == now.end()) left.push_back(id);
+        }
+        forgetFeatures(*snapshot->agent, 0, false, left);
+      }
       const RegistrationReport& r = result.report;
       response = answer(statusCode(r.status), statusName(r.status), r.message);
       if (r.status == Status::kOk && r.transform && r.covariance) {

@@ -51,7 +51,7 @@ class ReadmeCommands(unittest.TestCase):
         self.assertTrue(commands, 'no <!-- readme-commands --> block in ' + README)
         required = {
             'the node with rosrun': r'^rosrun pcr_pro merge_node\b.*&$',
-            'the bag': r'^rosbag play .*test/data/bags/pcr_pro_two_agents\.bag',
+            'the bag': r'^rosbag play .*\$PCR_PRO_SIM_DIR/demo/pcr_pro_two_agents\.bag',
             'the empty merge request': r'^rosservice call /merge_node/merge "\{\}"$',
             'the edge': r'^rostopic echo .*/merge_node/edge$',
             'the diagnostics': r'^rostopic echo .*/diagnostics$',

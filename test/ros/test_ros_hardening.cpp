@@ -13,6 +13,7 @@
 #include <set>
 #include <typeinfo>
 
+#include "common/sim_worlds.h"
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
@@ -21,8 +22,6 @@
 namespace pcr_pro {
 namespace ros_bridge {
 namespace {
-
-const std::string kDataDir = PCR_PRO_TEST_DATA_DIR;
 
 // Runs `f`, which must throw an InputError whose message contains every one of `words`.
 template <typename F>
@@ -39,8 +38,9 @@ void expectRejected(F f, std::initializer_list<const char*> words, const std::st
   }
 }
 
-const AgentMap& realAgent() {
-  static const AgentMap agent = loadBundle(kDataDir + "/bundles/depth/agent_b");
+// agent_b of the generated demo world (keyframes with dense depth, a semi-dense map cloud).
+const AgentMap& generatedAgent() {
+  static const AgentMap agent = loadBundle(test::simPath("demo/agent_b"));
   return agent;
 }
 
@@ -63,7 +63,7 @@ LsdKeyframe lsdKeyframe(long id, int w = 40, int h = 30) {
 // --- PointCloud2 ------------------------------------------------------------------------------
 
 TEST(BadClouds, EveryInconsistencyIsRefusedNamingTheField) {
-  const sensor_msgs::PointCloud2 good = cloudToMsg(realAgent().cloud, "agent_b/map", ros::Time(1.0));
+  const sensor_msgs::PointCloud2 good = cloudToMsg(generatedAgent().cloud, "agent_b/map", ros::Time(1.0));
   auto bad = good;
   bad.data.push_back(0);
   expectRejected([&] { cloudFromMsg(bad); }, {"cloud", "data size"}, "one byte too many");
@@ -119,7 +119,7 @@ TEST(BadClouds, NonFinitePointsAreDroppedAndCounted) {
 // --- images and CameraInfo --------------------------------------------------------------------
 
 TEST(BadKeyframes, ImagesCamerasAndPosesAreRefusedNamingTheField) {
-  const AgentMap& agent = realAgent();
+  const AgentMap& agent = generatedAgent();
   const pcr_pro::Keyframe good = keyframeToMsg(agent.keyframes.front(), agent.camera, "", ros::Time(), false);
   ASSERT_NO_THROW(keyframeFromMsg(good));
   const auto rejected = [&](const std::function<void(pcr_pro::Keyframe&)>& mutate,
@@ -180,7 +180,7 @@ TEST(BadKeyframes, ImagesCamerasAndPosesAreRefusedNamingTheField) {
 
 TEST(BadKeyframes, TextFromTheMessageIsQuotedOnOneLine) {
   // Found by fuzz_ros_keyframe: an encoding with a newline made the warning two lines.
-  const AgentMap& agent = realAgent();
+  const AgentMap& agent = generatedAgent();
   pcr_pro::Keyframe bad = keyframeToMsg(agent.keyframes.front(), agent.camera, "", ros::Time(), false);
   bad.image.encoding = std::string("rg\nb8\x1b[31m") + std::string(100, 'x');
   expectRejected([&] { keyframeFromMsg(bad); }, {"image", "unsupported encoding 'rg\\x0ab8\\x1b[31mxxx", "...'"},
@@ -321,7 +321,7 @@ TEST(StoreLimits, AreValidatedAndNamedAsNodeParameters) {
 }
 
 TEST(StoreLimits, KeyframesBeyondTheCapDropTheOneReceivedLongestAgo) {
-  const AgentMap& agent = realAgent();
+  const AgentMap& agent = generatedAgent();
   StoreLimits limits;
   limits.max_keyframes = 3;
   AgentStore store("agent_b/map", limits);
@@ -370,7 +370,7 @@ TEST(StoreLimits, LsdKeyframesAreCappedTooAndGraphUpdatesIgnoreDroppedIds) {
 }
 
 TEST(StoreLimits, ARefusedKeyframeLeavesTheStoreAsItWas) {
-  const AgentMap& agent = realAgent();
+  const AgentMap& agent = generatedAgent();
   StoreLimits limits;
   limits.max_keyframes = 2;
   AgentStore store("agent_b/map", limits);
@@ -442,25 +442,26 @@ TEST(StoreLimits, CloudsAboveTheCapAreVoxelisedCloseToTheCap) {
   EXPECT_TRUE(cap.subsampled);
 }
 
-TEST(StoreLimits, TheRealMapCloudStreamedDenserIsVoxelisedInTheStore) {
-  // The real agent cloud three times, jittered by 1 mm: the store keeps at most the cap.
-  const Cloud& real = realAgent().cloud;
-  Cloud dense(3, 3 * real.cols());
+TEST(StoreLimits, TheMapCloudStreamedDenserIsVoxelisedInTheStore) {
+  // The generated agent's map cloud three times, jittered by 1e-3 map units (2.5 mm at agent_b's
+  // 0.4 units per metre): the store keeps at most the cap.
+  const Cloud& map = generatedAgent().cloud;
+  Cloud dense(3, 3 * map.cols());
   std::mt19937 rng(3);
   std::normal_distribution<double> jitter(0.0, 1e-3);
   for (int k = 0; k < 3; ++k) {
-    for (Eigen::Index i = 0; i < real.cols(); ++i) {
-      dense.col(k * real.cols() + i) = real.col(i) + Eigen::Vector3d(jitter(rng), jitter(rng), jitter(rng));
+    for (Eigen::Index i = 0; i < map.cols(); ++i) {
+      dense.col(k * map.cols() + i) = map.col(i) + Eigen::Vector3d(jitter(rng), jitter(rng), jitter(rng));
     }
   }
   StoreLimits limits;
-  limits.max_cloud_points = static_cast<int>(real.cols() / 2);
+  limits.max_cloud_points = static_cast<int>(map.cols() / 2);
   AgentStore store("agent_b/map", limits);
   const CloudCap cap = store.setCloud(dense);
   EXPECT_TRUE(cap.capped());
   EXPECT_LE(store.cloudPoints(), static_cast<std::size_t>(limits.max_cloud_points));
   EXPECT_GE(store.cloudPoints(), static_cast<std::size_t>(limits.max_cloud_points / 2));
-  std::printf("real cloud x3 (%ld points) -> %zu points, leaf %.4g, cap %d\n", static_cast<long>(dense.cols()),
+  std::printf("map cloud x3 (%ld points) -> %zu points, leaf %.4g, cap %d\n", static_cast<long>(dense.cols()),
               store.cloudPoints(), cap.leaf, limits.max_cloud_points);
 }
 

@@ -2,7 +2,9 @@
 // bundles, clouds and configurations. Every case must end with exit status 2 and exactly one line on
 // stderr naming the file and the field at fault: never a crash, a signal or a hang.
 //
-// The bundles are copies of the shipped test/data/bundles/depth/agent_a, each mutated in one way.
+// The bundles are copies of a base bundle made from the generated demo world's agent_a (its cloud,
+// keyframe and depth images, camera and poses; BUILD/sim/demo, test/common/sim_worlds.h) with a
+// bundle.yaml written by this test, each copy mutated in one way.
 
 #include <gtest/gtest.h>
 #include <sys/wait.h>
@@ -23,6 +25,8 @@
 #include <string>
 #include <vector>
 
+#include "common/sim_worlds.h"
+#include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 
 namespace pcr_pro {
@@ -30,10 +34,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-const std::string kDataDir = PCR_PRO_TEST_DATA_DIR;
-const std::string kAgentA = kDataDir + "/bundles/depth/agent_a";
-const std::string kAgentB = kDataDir + "/bundles/depth/agent_b";
-// A run longer than this is a hang (the slowest valid merge of the shipped bundles takes seconds).
+// Two valid bundles of the generated demo world (partners of the defective ones).
+const std::string kAgentA = test::simPath("demo/agent_a");
+const std::string kAgentB = test::simPath("demo/agent_b");
+// A run longer than this is a hang (the slowest valid merge of the generated bundles takes seconds).
 constexpr int kTimeoutSeconds = 120;
 
 struct ToolRun {
@@ -164,7 +168,97 @@ std::string garbage(std::size_t n, unsigned seed) {
   return s;
 }
 
-// ---- pcr_pro_merge over mutated copies of agent_a -------------------------------------------
+// ---- the base bundle -------------------------------------------------------------------------
+
+// The generated agent_a with a bundle.yaml in a layout of this test's own (keyframe ids 1, 2, 4;
+// one number format), so that every defect below is one text substitution that is known to apply:
+// the strings the defects replace are kept here.
+struct BaseBundle {
+  fs::path dir;
+  std::string yaml;
+  std::string camera;                 // the whole camera block
+  std::string fx, fy, cx, width, height;  // "fx: 525", ... as written
+  std::string p1, q1;                 // the first keyframe's position and orientation lists
+  std::string scale1;                 // "      scale: <s>\n    depth: keyframes/1_depth.png"
+  std::string depth_scale1;           // "depth_scale: <d>" of the first keyframe
+};
+
+std::string num(double v) {
+  std::ostringstream os;
+  os.precision(12);
+  os << v;
+  return os.str();
+}
+
+std::string list(std::initializer_list<double> values) {
+  std::string out = "[";
+  for (double v : values) out += (out.size() > 1 ? ", " : "") + num(v);
+  return out + "]";
+}
+
+const BaseBundle& base() {
+  static const BaseBundle b = [] {
+    BaseBundle out;
+    out.dir = scratch() / "base";
+    fs::create_directories(out.dir / "keyframes");
+    const AgentMap map = loadBundle(kAgentA);
+    if (map.keyframes.size() < 3) throw std::runtime_error("test bug: the generated agent_a has fewer than 3 keyframes");
+    fs::copy_file(kAgentA + "/map.pcd", out.dir / "map.pcd");
+    const PinholeCamera& c = map.camera;
+    out.fx = "fx: " + num(c.fx);
+    out.fy = "fy: " + num(c.fy);
+    out.cx = "cx: " + num(c.cx);
+    out.width = "width: " + std::to_string(c.width);
+    out.height = "height: " + std::to_string(c.height);
+    out.camera = "camera:\n  " + out.fx + "\n  " + out.fy + "\n  " + out.cx + "\n  cy: " + num(c.cy) + "\n  " +
+                 out.width + "\n  " + out.height + "\n";
+    std::string keyframes = "keyframes:\n";
+    const long ids[3] = {1, 2, 4};
+    for (int k = 0; k < 3; ++k) {
+      // The generated keyframes in the order 1, 2, 0: the first one listed has a pose other than identity.
+      const MapKeyframe& kf = map.keyframes[static_cast<std::size_t>((k + 1) % 3)];
+      const std::string id = std::to_string(ids[k]);
+      const std::string image = "keyframes/" + id + ".png", depth = "keyframes/" + id + "_depth.png";
+      cv::imwrite((out.dir / image).string(), kf.image);
+      const double depth_scale = 1000.0 * (k + 1);  // 16-bit depth in steps of 1, 0.5, 0.33 mm
+      cv::Mat depth16;
+      kf.depth.convertTo(depth16, CV_16UC1, depth_scale);
+      cv::imwrite((out.dir / depth).string(), depth16);
+      const Eigen::Quaterniond q = kf.pose.quaternion();
+      const Eigen::Vector3d& t = kf.pose.translation();
+      const std::string position = list({t.x(), t.y(), t.z()}), orientation = list({q.x(), q.y(), q.z(), q.w()});
+      const std::string scale_depth = "      scale: " + num(kf.pose.scale()) + "\n    depth: " + depth;
+      if (k == 0) {
+        out.p1 = position;
+        out.q1 = orientation;
+        out.scale1 = scale_depth;
+        out.depth_scale1 = "depth_scale: " + num(depth_scale);
+      }
+      keyframes += "  - id: " + id + "\n    image: " + image + "\n    pose:\n      position: " + position +
+                   "\n      orientation: " + orientation + "\n" + scale_depth + "\n    depth_scale: " +
+                   num(depth_scale) + "\n";
+    }
+    out.yaml = "frame_id: agent_a/map\ncloud: map.pcd\n" + out.camera + keyframes;
+    writeBytes(out.dir / "bundle.yaml", out.yaml);
+    return out;
+  }();
+  return b;
+}
+
+// The base bundle itself is valid: each defect below is the only thing wrong with its copy.
+TEST(BaseBundle, LoadsAndKeepsTheGeneratedKeyframes) {
+  const AgentMap map = loadBundle(base().dir.string());
+  ASSERT_EQ(map.keyframes.size(), 3u);
+  EXPECT_EQ(map.keyframes[0].id, 1);
+  EXPECT_EQ(map.keyframes[2].id, 4);
+  EXPECT_EQ(map.cloud.cols(), loadBundle(kAgentA).cloud.cols());
+  EXPECT_FALSE(map.keyframes[0].depth.empty());
+  for (const std::string& text : {base().camera, base().p1, base().q1, base().scale1, base().depth_scale1}) {
+    EXPECT_EQ(base().yaml.find(text), base().yaml.rfind(text)) << "not unique in bundle.yaml: " << text;
+  }
+}
+
+// ---- pcr_pro_merge over mutated copies of the base bundle --------------------------------------
 
 struct BundleDefect {
   std::string name;
@@ -227,15 +321,14 @@ std::function<void(const fs::path&)> truncatedJpeg(const std::string& rel) {
 }
 
 std::vector<BundleDefect> bundleDefects() {
+  const BaseBundle& b = base();
   const std::string y = "bundle.yaml";
   const std::string img = "keyframes/1.png", dep = "keyframes/1_depth.png";
-  const std::string camera =
-      "camera:\n  fx: 518.0\n  fy: 519.0\n  cx: 325.5\n  cy: 253.5\n  width: 640\n  height: 480\n";
-  const std::string q1 = "[0.048973829433, 0.093757233154, -0.079169264539, 0.991233258529]";
-  const std::string p1 = "[0.202727320899, -0.085010917537, 0.819024393665]";
-  const std::string kf_scale = "      scale: 1.0\n    depth: keyframes/1_depth.png";
-  const std::string before_keyframes =
-      readText(kAgentA + "/bundle.yaml").substr(0, readText(kAgentA + "/bundle.yaml").find("keyframes:"));
+  const std::string& camera = b.camera;
+  const std::string& q1 = b.q1;
+  const std::string& p1 = b.p1;
+  const std::string& kf_scale = b.scale1;
+  const std::string before_keyframes = b.yaml.substr(0, b.yaml.find("keyframes:"));
   const cv::Mat small_grey(240, 320, CV_8UC1, cv::Scalar(7));
   const cv::Mat grey16(480, 640, CV_16UC1, cv::Scalar(7));
   const cv::Mat grey8(480, 640, CV_8UC1, cv::Scalar(7));
@@ -260,27 +353,27 @@ std::vector<BundleDefect> bundleDefects() {
       {"YamlTruncatedMidList",
        "",
        "",
-       truncateAfter(y, "position: [0.202727320899, -0.0850"),
+       truncateAfter(y, "position: " + p1.substr(0, p1.find(',') + 4)),
        y,
        {"YAML syntax error"},
        ""},
       {"YamlTopLevelList", "", "", writeFile(y, "- cloud\n- camera\n"), y, {"top level must be a map"}, ""},
-      {"YamlSyntaxError", "  fx: 518.0\n", "  fx: [518.0\n", nullptr, y, {"YAML syntax error"}, ""},
+      {"YamlSyntaxError", "  " + b.fx + "\n", "  fx: [" + b.fx.substr(4) + "\n", nullptr, y, {"YAML syntax error"}, ""},
       {"YamlDeepNesting", "", "", writeFile(y, "cloud: " + std::string(100000, '[') + "\n"), y, {}, ""},
       {"YamlUnknownKey", "frame_id:", "frameid:", nullptr, y, {"frameid: unknown key"}, ""},
-      {"YamlDuplicateKey", "  fx: 518.0\n", "  fx: 518.0\n  fx: 1.0\n", nullptr, y, {"camera.fx: duplicate key"}, ""},
+      {"YamlDuplicateKey", "  " + b.fx + "\n", "  " + b.fx + "\n  fx: 1.0\n", nullptr, y, {"camera.fx: duplicate key"}, ""},
       // camera
-      {"FxZero", "fx: 518.0", "fx: 0", nullptr, y, {"camera.fx", "> 0"}, ""},
-      {"FxNegative", "fx: 518.0", "fx: -518.0", nullptr, y, {"camera.fx", "> 0"}, ""},
-      {"FyZero", "fy: 519.0", "fy: 0.0", nullptr, y, {"camera.fy", "> 0"}, ""},
-      {"FxNan", "fx: 518.0", "fx: .nan", nullptr, y, {"camera.fx", "finite"}, ""},
-      {"FxString", "fx: 518.0", "fx: \"518.0\"", nullptr, y, {"camera.fx", "string"}, ""},
-      {"CxWord", "cx: 325.5", "cx: left", nullptr, y, {"camera.cx", "number"}, ""},
-      {"WidthZero", "width: 640", "width: 0", nullptr, y, {"camera.width", "> 0"}, ""},
-      {"HeightNegative", "height: 480", "height: -480", nullptr, y, {"camera.height", "> 0"}, ""},
-      {"WidthFraction", "width: 640", "width: 640.5", nullptr, y, {"camera.width", "integer"}, ""},
-      {"WidthHuge", "width: 640", "width: 99999999999", nullptr, y, {"camera.width", "too large"}, ""},
-      {"CameraList", camera, "camera: [518, 519, 325.5, 253.5, 640, 480]\n", nullptr, y, {"camera", "map"}, ""},
+      {"FxZero", b.fx, "fx: 0", nullptr, y, {"camera.fx", "> 0"}, ""},
+      {"FxNegative", b.fx, "fx: -" + b.fx.substr(4), nullptr, y, {"camera.fx", "> 0"}, ""},
+      {"FyZero", b.fy, "fy: 0.0", nullptr, y, {"camera.fy", "> 0"}, ""},
+      {"FxNan", b.fx, "fx: .nan", nullptr, y, {"camera.fx", "finite"}, ""},
+      {"FxString", b.fx, "fx: \"" + b.fx.substr(4) + "\"", nullptr, y, {"camera.fx", "string"}, ""},
+      {"CxWord", b.cx, "cx: left", nullptr, y, {"camera.cx", "number"}, ""},
+      {"WidthZero", b.width, "width: 0", nullptr, y, {"camera.width", "> 0"}, ""},
+      {"HeightNegative", b.height, "height: -480", nullptr, y, {"camera.height", "> 0"}, ""},
+      {"WidthFraction", b.width, "width: 640.5", nullptr, y, {"camera.width", "integer"}, ""},
+      {"WidthHuge", b.width, "width: 99999999999", nullptr, y, {"camera.width", "too large"}, ""},
+      {"CameraList", camera, "camera: [525, 525, 319.5, 239.5, 640, 480]\n", nullptr, y, {"camera", "map"}, ""},
       {"CameraMissing", camera, "", nullptr, y, {"camera: missing"}, ""},
       // keyframes
       {"NoKeyframes", "", "", writeFile(y, before_keyframes + "keyframes: []\n"), y, {"keyframes", "no keyframes"}, ""},
@@ -315,10 +408,10 @@ std::vector<BundleDefect> bundleDefects() {
        y,
        {"keyframes[0].pose.scale", "number"},
        ""},
-      {"DepthScaleMissing", "    depth_scale: 1000.0\n", "", nullptr, y, {"keyframes[0].depth_scale", "required"}, ""},
-      {"DepthScaleZero", "depth_scale: 1000.0", "depth_scale: 0", nullptr, y, {"keyframes[0].depth_scale", "> 0"}, ""},
+      {"DepthScaleMissing", "    " + b.depth_scale1 + "\n", "", nullptr, y, {"keyframes[0].depth_scale", "required"}, ""},
+      {"DepthScaleZero", b.depth_scale1, "depth_scale: 0", nullptr, y, {"keyframes[0].depth_scale", "> 0"}, ""},
       {"DepthScaleList",
-       "depth_scale: 1000.0",
+       b.depth_scale1,
        "depth_scale: [1000]",
        nullptr,
        y,
@@ -329,7 +422,7 @@ std::vector<BundleDefect> bundleDefects() {
       {"CloudMissing", "", "", removeFile("map.pcd"), "map.pcd", {"not found", "(cloud)"}, ""},
       {"CloudEmptyFile", "", "", writeFile("map.pcd", ""), "map.pcd", {"empty", "(cloud)"}, ""},
       {"CloudTruncated", "", "", truncateFile("map.pcd", 0.5), "map.pcd", {"truncated", "(cloud)"}, ""},
-      {"CloudHeaderOnly", "", "", truncateFile("map.pcd", 0.0006), "map.pcd", {"(cloud)"}, ""},
+      {"CloudHeaderOnly", "", "", truncateAfter("map.pcd", "DATA binary\n"), "map.pcd", {"(cloud)"}, ""},
       {"CloudGarbage", "", "", writeFile("map.pcd", garbage(5000, 5)), "map.pcd", {"(cloud)"}, ""},
       {"CloudNoPoints", "", "", writeFile("map.pcd", xyzHeader("0", "binary")), "map.pcd", {"empty", "(cloud)"}, ""},
       {"CloudAllNan",
@@ -427,11 +520,11 @@ TEST_P(MergeBadBundle, ExitsTwoWithOneLineNamingFileAndField) {
   const BundleDefect& d = GetParam();
   const fs::path copy = scratch() / d.name;
   fs::remove_all(copy);
-  fs::copy(kAgentA, copy, fs::copy_options::recursive);
+  fs::copy(base().dir, copy, fs::copy_options::recursive);
   if (!d.from.empty()) {
     std::string text = readText(copy / "bundle.yaml");
     const std::size_t at = text.find(d.from);
-    ASSERT_NE(at, std::string::npos) << "test bug: '" << d.from << "' is not in the shipped bundle.yaml";
+    ASSERT_NE(at, std::string::npos) << "test bug: '" << d.from << "' is not in the base bundle.yaml";
     text.replace(at, d.from.size(), d.to);
     writeBytes(copy / "bundle.yaml", text);
   }
@@ -657,9 +750,12 @@ TEST(InputLimits, ShippedConfigCarriesTheStructDefaults) {
 }
 
 TEST(InputLimits, BundleWithinTheLimitsStillMerges) {
-  // The limits set exactly to the shipped bundles' sizes: nothing is refused.
+  // The limits set exactly to the generated bundles' sizes: nothing is refused.
+  const AgentMap a = loadBundle(kAgentA), b = loadBundle(kAgentB);
   const fs::path config = scratch() / "exact_limits.yaml";
-  writeBytes(config, "limits: {max_cloud_points: 30000, max_keyframes: 3, max_image_pixels: 307200}\n");
+  writeBytes(config, "limits: {max_cloud_points: " + std::to_string(std::max(a.cloud.cols(), b.cloud.cols())) +
+                         ", max_keyframes: " + std::to_string(std::max(a.keyframes.size(), b.keyframes.size())) +
+                         ", max_image_pixels: " + std::to_string(a.camera.width * a.camera.height) + "}\n");
   const ToolRun r =
       runTool(PCR_PRO_MERGE_BIN, "--source " + kAgentB + " --target " + kAgentA + " --config " + config.string());
   EXPECT_EQ(r.signal, 0);

@@ -151,7 +151,7 @@ TEST(FeatureMatching, PairVotesRankTheOverlappingKeyframesFirst) {
   PCR_PRO_REQUIRE_DATA(kColorDir);
   // Source keyframes 3 and 5, target keyframes 1, 2, 4 and a mirrored frame 2 (the same texture,
   // but SIFT descriptors do not match mirrored patches). Essential-matrix inliers of the real
-  // pairs (test/data/bundles/overlap_checks.yaml): 3: 2 -> 68, 4 -> 61, 1 -> 23; 5: 4 -> 143,
+  // pairs (measured on these frames): 3: 2 -> 68, 4 -> 61, 1 -> 23; 5: 4 -> 143,
   // 2 -> 35, 1 -> 18.
   const FeatureMatchingOptions o;
   cv::Mat mirrored;

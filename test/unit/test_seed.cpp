@@ -13,6 +13,7 @@
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/merge/seed.h"
+#include "common/sim_worlds.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {
@@ -52,11 +53,13 @@ TEST(Seed, DefaultsAreTheOneSharedDefault) {
 
 // The merge chooses its keyframe pair itself (votes, FLANN-like index, RANSAC per pair): two
 // runs with the same seed, with other merges and std::rand() draws between them, agree bit for bit.
+// On the generated demo world (3 x 3 keyframes).
 TEST(Seed, EqualSeedsGiveBitForBitEqualMerges) {
-  const std::string dir = test::dataPath("bundles/depth");
+  const std::string dir = test::simPath("demo");
   const AgentMap source = loadBundle(dir + "/agent_b"), target = loadBundle(dir + "/agent_a");
+  ASSERT_GT(source.keyframes.size() * target.keyframes.size(), 2u);
   MergeOptions o;
-  o.merge.max_candidate_pairs = 2;  // the vote preselection runs too (6 pairs)
+  o.merge.max_candidate_pairs = 2;  // the vote preselection runs too (fewer candidates than pairs)
   setSeed(&o, 5);
   std::srand(3);
   const MergeResult first = mergeMaps(source, target, MergeRequest(), o);
@@ -99,7 +102,7 @@ std::string withoutTimings(const std::string& yaml) {
 }
 
 TEST(Seed, MergeToolRunsAreRepeatable) {
-  const std::string dir = test::dataPath("bundles/depth");
+  const std::string dir = test::simPath("demo");
   const std::string args = "--source " + dir + "/agent_b --target " + dir + "/agent_a --seed 9";
   const CliRun a = run(PCR_PRO_MERGE_BIN, args), b = run(PCR_PRO_MERGE_BIN, args);
   ASSERT_EQ(a.status, 0) << a.err << a.out;
@@ -114,12 +117,26 @@ TEST(Seed, MergeToolRunsAreRepeatable) {
   }
 }
 
+// Writes a cloud as CSV (x,y,z with a header) and returns the path.
+std::string writeCsv(const Cloud& c, const std::string& name) {
+  const fs::path p = fs::temp_directory_path() / ("pcr_pro_seed_" + std::to_string(::getpid()) + "_" + name + ".csv");
+  std::ofstream out(p);
+  out.precision(9);
+  out << "x,y,z\n";
+  for (Eigen::Index i = 0; i < c.cols(); ++i) out << c(0, i) << "," << c(1, i) << "," << c(2, i) << "\n";
+  return p.string();
+}
+
 TEST(Seed, IcpToolSeedsTheRandomFilters) {
-  // A random_sampling step keeps each point with probability 1/2: the seed decides which.
+  // A random_sampling step keeps each point with probability 1/2: the seed decides which. The
+  // clouds are made here: a synthetic scene and the same scene moved by 3 deg and 5 cm.
+  std::mt19937 rng(11);
+  const Cloud target = test::syntheticScene(4000, 4.0, rng);
+  const Sim3 moved(1.0, test::randomRotation(rng, test::rad(3.0)), Eigen::Vector3d(0.05, -0.02, 0.03));
   const fs::path cfg = fs::temp_directory_path() / ("pcr_pro_seed_icp_" + std::to_string(::getpid()) + ".yaml");
   std::ofstream(cfg) << "filters:\n  - random_sampling: {keep_ratio: 0.5}\n";
-  const std::string args = "--source " + test::dataPath("libpointmatcher_car/car_cloud401.csv") + " --target " +
-                           test::dataPath("libpointmatcher_car/car_cloud400.csv") + " --config " + cfg.string();
+  const std::string args = "--source " + writeCsv(moved.apply(target), "source") + " --target " +
+                           writeCsv(target, "target") + " --config " + cfg.string();
   const CliRun a = run(PCR_PRO_ICP_BIN, args + " --seed 3"), b = run(PCR_PRO_ICP_BIN, args + " --seed 3");
   const CliRun c = run(PCR_PRO_ICP_BIN, args + " --seed 4");
   ASSERT_EQ(a.status, 0) << a.err << a.out;

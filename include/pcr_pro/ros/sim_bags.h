@@ -1,9 +1,9 @@
 /**
  * @file sim_bags.h
- * @brief The two ROS bags of a simulated world (pcr_pro_simulate --bags), with the topics of the
- * shipped bags (pcr_pro_make_bags) and their timing style: a fixed time base (1600000000 s), the
- * agents one after the other; one message every 0.1 s in each bag (the shipped ones: 0.25 s over
- * both), so that the demo world's bags play in a few seconds.
+ * @brief The two ROS bags of a simulated world (pcr_pro_simulate --bags) with the topics a merge
+ * node subscribes to, for agent_a and agent_b (the pair of truth.yaml): a fixed time base
+ * (1600000000 s), the agents one after the other, one message every 0.1 s in each bag, so that
+ * the demo world's bags play in a few seconds (demo.launch, the rostests).
  */
 #pragma once
 
@@ -21,7 +21,8 @@ struct SimBagFiles {
 };
 
 /**
- * @brief Writes, for every agent X:
+ * @brief Writes, for each of the first two agents X (agent_a and agent_b; further agents are left
+ * out, so that a node with the default agents subscribes to every topic of the bags):
  * - DIR/pcr_pro_two_agents.bag: `X/cloud` (sensor_msgs/PointCloud2, the map cloud, frame
  *   X/map), then `X/keyframes` (pcr_pro/Keyframe: grey image, CameraInfo, map pose and scale,
  *   the depth image of the bundle as 16UC1 in millimetres (REP 118; camera units are

@@ -8,7 +8,8 @@
 //   source_agent / target_agent (string, default "")  as in the request ("" = node default)
 //   source_keyframe / target_keyframe (int, absent)   merge from this keyframe (use_*_keyframe);
 //                                                 absent = the pipeline chooses the pair
-//   truth_file (string, default "")               a truth.yaml: also print the errors of the edge
+//   truth_file (string, default "")               a truth.yaml: also print the edge's errors against it
+//                                                 beside its reported uncertainty (truth_comparison.h)
 //   output_file (string, default "")              also write the YAML to this file
 //   end_launch (bool, default false)              when done, end the roslaunch that started this
 //                                                 client as Ctrl-C would (SIGINT to the parent
@@ -27,6 +28,7 @@
 
 #include "pcr_pro/MergeMaps.h"
 #include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/truth_comparison.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 namespace {
@@ -127,13 +129,15 @@ int main(int argc, char** argv) {
     y << "  fitness_rmse: " << e.fitness_rmse << "\n  correspondences: " << e.correspondences << "\n";
     const std::string truth_file = pnh.param<std::string>("truth_file", "");
     if (!truth_file.empty()) {
-      const pcr_pro::BundleTruth truth = pcr_pro::loadBundleTruth(truth_file);
-      const pcr_pro::Sim3 s = pcr_pro::ros_bridge::edgeFromMsg(e).target_source;
-      const pcr_pro::Sim3& t = truth.target_source;
-      y << "errors_vs_truth:  # " << truth_file << "\n";
-      y << "  rotation_deg: " << pcr_pro::rotationDistance(s.rotation(), t.rotation()) * 180.0 / M_PI << "\n";
-      y << "  scale_relative: " << std::abs(s.scale() / t.scale() - 1.0) << "\n";
-      y << "  translation: " << (s.translation() - t.translation()).norm() << "\n";
+      try {
+        const pcr_pro::BundleTruth truth = pcr_pro::loadBundleTruth(truth_file);
+        const pcr_pro::ros_bridge::EdgeData edge = pcr_pro::ros_bridge::edgeFromMsg(e);
+        y << pcr_pro::truthErrorsYaml(pcr_pro::compareWithTruth(edge.target_source, truth.target_source,
+                                                                edge.covariance, edge.scale_stddev),
+                                      truth_file);
+      } catch (const std::exception& ex) {  // a bad truth file or edge: the edge is printed without errors
+        ROS_ERROR("~truth_file: %s", ex.what());
+      }
     }
   }
   std::fputs(y.str().c_str(), stdout);

@@ -1,23 +1,43 @@
 #!/usr/bin/env python3
-"""Writes the seed corpus of the ROS message fuzz targets (test/fuzz/corpus/{ros_cloud,
-ros_keyframe,lsd_keyframe,lsd_graph}/) by cutting small messages out of the shipped bags
-(test/data/bags): the first points of a map cloud, 16x12 crops of real keyframes (with their
-intrinsics moved to the crop) and the real LSD-SLAM graph messages. Each seed is one message in
-ROS serialization, exactly the bytes a subscriber deserializes. Deterministic.
+"""Writes the seed corpus of the bundle and ROS message fuzz targets (test/fuzz/corpus/{bundle,
+ros_cloud,ros_keyframe,lsd_keyframe,lsd_graph}/) from the project's own generated worlds (the
+build's BUILD/sim/demo and BUILD/sim/nodepth, pcr_pro_simulate with config/sim_demo.yaml; nothing
+comes from ../shared/data): the bundle.yaml of agent_a (with depth) and of agent_b (without), and
+from the world's two bags the first points of a map cloud, 16x12 crops of keyframes (with their
+intrinsics moved to the crop) and the LSD-SLAM graph messages, plus the two regression inputs
+that fuzzing once found (a denormal coordinate, an encoding with a newline) rebuilt on these
+seeds. Each message seed is one message in ROS serialization, exactly the bytes a subscriber
+deserializes. Deterministic for a given world.
 
-Usage: /usr/bin/python3 test/fuzz/make_ros_seeds.py   (Debian's python3: it needs python3-rosbag)
+Usage: /usr/bin/python3 test/fuzz/make_sim_seeds.py [BUILD_DIR]   (default build; Debian's
+python3: it needs python3-rosbag, and BUILD_DIR/devel/setup.bash sourced for pcr_pro's messages)
 """
 import copy
 import io
 import os
+import shutil
 import struct
+import sys
 
 import rosbag
 
 ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-BAGS = os.path.join(ROOT, "test", "data", "bags")
+BUILD = os.path.abspath(sys.argv[1]) if len(sys.argv) > 1 else os.path.join(ROOT, "build")
+WORLD = os.path.join(BUILD, "sim", "demo")
+NODEPTH = os.path.join(BUILD, "sim", "nodepth")
+BAGS = WORLD
 CORPUS = os.path.join(ROOT, "test", "fuzz", "corpus")
 CROP_W, CROP_H = 16, 12
+# The seeds this script owns (the rest of each directory, e.g. bundle/tiny_valid.yaml, is written by hand).
+OWNED = {
+    "bundle": ["agent_a_depth.yaml", "agent_b_nodepth.yaml"],
+    "ros_cloud": ["agent_a_head_xyz32.msg", "agent_a_head_xyz64.msg", "organised_rgb_nan.msg",
+                  "regression_denormal_extent.msg"],
+    "ros_keyframe": ["agent_a_kf_mono8_16uc1.msg", "agent_b_kf_rgb8_32fc1.msg", "agent_a_kf_bgra8_nodepth.msg",
+                     "regression_encoding_with_newline.msg"],
+    "lsd_keyframe": [],
+    "lsd_graph": [],
+}
 
 
 def read(bag_name):
@@ -89,16 +109,21 @@ def cloud_seeds(msgs):
     org.data = b"".join(struct.pack("<4f", *(p if i % 7 else (nan, nan, nan)), 0.5) for i, p in enumerate(xyz))
     write("ros_cloud", "organised_rgb_nan.msg", org)
 
+    # Regression: a denormal coordinate (the cloud's extent once overflowed on it).
+    den = copy.deepcopy(d64)
+    den.data = struct.pack("<d", 5e-310) + d64.data[8:]
+    write("ros_cloud", "regression_denormal_extent.msg", den)
+
 
 def keyframe_seeds(msgs):
     kfs = [m for t, m in msgs if t.endswith("/keyframes")]
-    # agent_a keyframe 1: mono8 + 16UC1 depth, centre crop.
+    # agent_a's first keyframe: mono8 + 16UC1 depth, centre crop.
     a = copy.deepcopy(kfs[0])
     x0, y0 = a.image.width // 2, a.image.height // 2
     crop_image(a.image, x0, y0, CROP_W, CROP_H, 1)
     crop_image(a.depth, x0, y0, CROP_W, CROP_H, 2)
     crop_camera(a.camera_info, x0, y0, CROP_W, CROP_H)
-    write("ros_keyframe", "agent_a_kf1_mono8_16uc1.msg", a)
+    write("ros_keyframe", "agent_a_kf_mono8_16uc1.msg", a)
 
     # agent_b keyframe: rgb8 (grey replicated) + 32FC1 depth [m], another crop.
     b = copy.deepcopy([m for t, m in msgs if t == "/agent_b/keyframes"][0])
@@ -119,7 +144,14 @@ def keyframe_seeds(msgs):
                             b"\0\0\0\0" for r in range(CROP_H))
     c.image.encoding, c.image.step = "bgra8", 4 * CROP_W + 4
     c.depth = type(c.depth)()
-    write("ros_keyframe", "agent_a_kf1_bgra8_nodepth.msg", c)
+    write("ros_keyframe", "agent_a_kf_bgra8_nodepth.msg", c)
+
+    # Regression: an encoding with a newline inside ("rg\n8"), 2 bytes a pixel, no depth.
+    r = copy.deepcopy(a)
+    r.image.data = bytes(v for g in r.image.data for v in (g, g))
+    r.image.encoding, r.image.step = "rg\n8", 2 * CROP_W
+    r.depth = type(r.depth)()
+    write("ros_keyframe", "regression_encoding_with_newline.msg", r)
 
 
 def lsd_seeds(msgs):
@@ -135,13 +167,30 @@ def lsd_seeds(msgs):
         write("lsd_keyframe", agent + "_kf%d_crop.msg" % m.id, m)
 
 
+def bundle_seeds():
+    for src, name in ((os.path.join(WORLD, "agent_a"), "agent_a_depth.yaml"),
+                      (os.path.join(NODEPTH, "agent_b"), "agent_b_nodepth.yaml")):
+        shutil.copyfile(os.path.join(src, "bundle.yaml"), os.path.join(CORPUS, "bundle", name))
+
+
 def main():
+    for d in (WORLD, NODEPTH):
+        if not os.path.isfile(os.path.join(d, "truth.yaml")):
+            sys.exit("make_sim_seeds.py: no generated world at %s (build the target pcr_pro_sim_worlds)" % d)
+    # Start from the hand-written seeds only: what this script wrote before goes.
+    for target, names in OWNED.items():
+        d = os.path.join(CORPUS, target)
+        os.makedirs(d, exist_ok=True)
+        for f in os.listdir(d):
+            if f in names or target in ("lsd_keyframe", "lsd_graph"):
+                os.remove(os.path.join(d, f))
+    bundle_seeds()
     pcr = read("pcr_pro_two_agents.bag")
     lsd = read("lsd_slam_two_agents.bag")
     cloud_seeds(pcr)
     keyframe_seeds(pcr)
     lsd_seeds(lsd)
-    for target in ("ros_cloud", "ros_keyframe", "lsd_keyframe", "lsd_graph"):
+    for target in ("bundle", "ros_cloud", "ros_keyframe", "lsd_keyframe", "lsd_graph"):
         d = os.path.join(CORPUS, target)
         print(target + ": " + ", ".join("%s (%d B)" % (f, os.path.getsize(os.path.join(d, f)))
                                         for f in sorted(os.listdir(d))))
