@@ -11,8 +11,10 @@
 #include <rosbag/view.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_listener.h>
+#include <yaml-cpp/yaml.h>
 
 #include <atomic>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <functional>
@@ -24,6 +26,7 @@
 #include <thread>
 
 #include "pcr_pro/EdgeHistory.h"
+#include "common/data_dir.h"
 #include "common/sim_worlds.h"
 #include "pcr_pro/GetEdges.h"
 #include "pcr_pro/MergeMaps.h"
@@ -245,7 +248,10 @@ long number(DiagnosticsWatcher& d, const std::string& task, const std::string& k
 // taken the one before (its messages_received), so that none is lost or overtaken on the way:
 // `rosbag play` into a loaded machine once lost a 3.7 MB keyframe and once delivered a graph before
 // the keyframe it moves (two topics are two connections). @return the messages per agent.
-std::map<std::string, int> streamLsdBag(const std::string& file, DiagnosticsWatcher& diagnostics) {
+// `root_agent`: for a bag recorded in the root namespace as LSD-SLAM publishes (/lsd_slam/...), the
+// agent whose namespace its messages go to.
+std::map<std::string, int> streamLsdBag(const std::string& file, DiagnosticsWatcher& diagnostics,
+                                        const std::string& root_agent = "") {
   ros::NodeHandle nh;
   std::map<std::string, ros::Publisher> publishers;
   std::map<std::string, long> received;
@@ -264,7 +270,9 @@ std::map<std::string, int> streamLsdBag(const std::string& file, DiagnosticsWatc
   ros::WallDuration(0.5).sleep();  // the node's side of the connections
   rosbag::Bag bag(file, rosbag::bagmode::Read);
   for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
-    const std::string topic = m.getTopic().substr(1), agent = topic.substr(0, topic.find('/'));
+    const std::string topic = root_agent.empty() ? m.getTopic().substr(1) : root_agent + m.getTopic();
+    const std::string agent = topic.substr(0, topic.find('/'));
+    if (publishers.count(topic) == 0) continue;  // e.g. liveframes or poses
     if (const auto kf = m.instantiate<lsd_slam_viewer::keyframeMsg>()) publishers.at(topic).publish(*kf);
     if (const auto graph = m.instantiate<lsd_slam_viewer::keyframeGraphMsg>()) publishers.at(topic).publish(*graph);
     ++counts[agent];
@@ -829,6 +837,52 @@ TEST_F(Live, ShippedNodeConfigStatesTheStructDefaults) {
   }
 }
 
+
+// --- merge_real_lsd_bags.test: REAL LSD-SLAM output through the node ----------------------------
+
+// The original LSD-SLAM's messages as it published them on 7-Scenes images, two agents
+// ($PCR_PRO_DATA_DIR/lsd_slam_7scenes, see its SOURCE.txt), played into the node in LSD-SLAM mode
+// as a user would (each bag remapped into its agent's namespace), merged both ways through
+// ~merge. The truth is truth.yaml's similarity of B's map into A's where the maps overlap, itself
+// known to about +-3 deg and +-25 % in scale (each LSD map's scale drifts along its path).
+TEST(RealLsdBags, BothDirectionsMergeThroughTheNodeNearTheOverlapTruth) {
+  PCR_PRO_REQUIRE_DATA("lsd_slam_7scenes/agent_a.bag");
+  const std::string dir = test::dataPath("lsd_slam_7scenes");
+  ros::NodeHandle nh;
+  DiagnosticsWatcher diagnostics(nh);
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_received", "0"));
+  streamLsdBag(dir + "/agent_a.bag", diagnostics, "agent_a");
+  streamLsdBag(dir + "/agent_b.bag", diagnostics, "agent_b");
+  ASSERT_FALSE(HasFailure()) << "the bags' messages did not all reach the node";
+  const YAML::Node rec = YAML::LoadFile(dir + "/truth.yaml")["sim3_agent_b_to_agent_a_alternatives"]["overlap_local_recommended"];
+  const YAML::Node q = rec["q_xyzw"], t = rec["t"];
+  const Sim3 truth_ab(rec["s"].as<double>(), Eigen::Quaterniond(q[3].as<double>(), q[0].as<double>(), q[1].as<double>(), q[2].as<double>()),
+                      Eigen::Vector3d(t[0].as<double>(), t[1].as<double>(), t[2].as<double>()));
+  const double truth_sd = std::log(1.25) / 2.0;  // the truth's +-25 % as two of its standard deviations
+  Sim3 b_into_a, a_into_b;
+  for (const bool reverse : {false, true}) {
+    const std::string name = reverse ? "a->b" : "b->a";
+    const Response r = reverse ? callMerge("agent_a", "agent_b") : callMerge("agent_b", "agent_a");
+    ASSERT_EQ(r.status, Response::OK) << name << ": " << r.status_name << ": " << r.message;
+    const EdgeData edge = edgeFromMsg(r.edge);
+    (reverse ? a_into_b : b_into_a) = edge.target_source;
+    const Sim3 estimate_ab = reverse ? edge.target_source.inverse() : edge.target_source;
+    const Sim3 d = estimate_ab * truth_ab.inverse();
+    const double rotation_deg = Eigen::AngleAxisd(d.rotation()).angle() * 180.0 / M_PI;
+    const double log_scale = std::log(d.scale());
+    std::printf("%s through the node: rotation %.2f deg, scale %+.1f %% from the overlap truth; scale_stddev %.1f %%\n",
+                name.c_str(), rotation_deg, 100.0 * (d.scale() - 1.0), 100.0 * r.edge.scale_stddev);
+    EXPECT_LT(rotation_deg, 3.0) << name;
+    EXPECT_LT(std::abs(d.scale() - 1.0), 0.2) << name;
+    EXPECT_LE(std::abs(log_scale), 3.0 * std::hypot(r.edge.scale_stddev, truth_sd)) << name;
+    EXPECT_LT(r.edge.scale_stddev, 0.25) << name;
+    for (double v : r.edge.information) EXPECT_TRUE(std::isfinite(v)) << name;
+  }
+  // a->b inverted and b->a describe the same similarity within the maps' scale-drift spread.
+  const Sim3 d = a_into_b.inverse() * b_into_a.inverse();
+  EXPECT_LT(Eigen::AngleAxisd(d.rotation()).angle() * 180.0 / M_PI, 3.0);
+  EXPECT_LT(std::abs(d.scale() - 1.0), 0.1);
+}
 // --- auto_merge.test, auto_merge_lsd.test (issue 14): automatic merging and the merge history --
 
 // Waits until the latest message of `latest` satisfies `ok`; @return it (nullptr on timeout).
