@@ -69,26 +69,6 @@ void checkScale(double s, const std::string& field) {
 
 }  // namespace
 
-// --- text from messages -----------------------------------------------------------------------
-
-std::string printable(const std::string& text, std::size_t max_length) {
-  std::string out;
-  const std::size_t n = std::min(text.size(), max_length);
-  for (std::size_t i = 0; i < n; ++i) {
-    const unsigned char c = static_cast<unsigned char>(text[i]);
-    if (c >= 0x20 && c < 0x7f) {
-      out += static_cast<char>(c);
-    } else {
-      static const char* hex = "0123456789abcdef";
-      out += "\\x";
-      out += hex[c >> 4];
-      out += hex[c & 15];
-    }
-  }
-  if (text.size() > max_length) out += "...";
-  return out;
-}
-
 // --- camera and poses -------------------------------------------------------------------------
 
 namespace {

@@ -1,8 +1,10 @@
 // pcr_pro_merge: offline merge of two map bundles (command line, result YAML and exit statuses: docs/FORMATS.md).
 #include <cstdlib>
+#include <filesystem>
 #include <iostream>
 
 #include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/pose_graph.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/merge/seed.h"
 #include "tool_common.h"
@@ -12,10 +14,15 @@ namespace {
 const char* kUsage =
     "usage: pcr_pro_merge --source DIR --target DIR [--config FILE] [--output DIR]\n"
     "                     [--source-keyframe ID] [--target-keyframe ID] [--seed N]\n"
+    "                     [--g2o FILE] [--tum FILE]\n"
     "Merges the source agent's map bundle into the target agent's (PCR-Pro: SIFT/FLANN keyframe\n"
     "matching, OpenGV relative pose, Kalman-filter scale, ICP with scale, closed-form covariance)\n"
     "and prints the result YAML (S_target_source). --seed N (0 ... 2147483647, default 1) seeds every\n"
     "random stage: equal inputs and seeds give equal results, bit for bit.\n"
+    "--g2o FILE writes the merge as a g2o pose graph (every keyframe of both agents as a\n"
+    "VERTEX_SIM3:EXPMAP in the target map frame, the merge as an EDGE_SIM3:EXPMAP between the anchor\n"
+    "keyframes with its information); --tum FILE the fused keyframes as a TUM trajectory\n"
+    "(timestamp = keyframe id: bundles carry no times). Written only when the maps merged.\n"
     "Exit: 0 merged, 1 not merged, 2 bad input.\n";
 
 long parseId(const std::string& option, const std::string& text) {
@@ -28,6 +35,37 @@ long parseId(const std::string& option, const std::string& text) {
   throw pcr_pro::tools::UsageError(option + ": not an integer keyframe id: '" + text + "'");
 }
 
+// The agent's name in the pose graph: its bundle directory's name.
+std::string agentName(const std::string& dir, const std::string& fallback) {
+  std::filesystem::path p(dir);
+  if (!p.has_filename()) p = p.parent_path();
+  const std::string name = p.filename().string();
+  return name.empty() || name == "." || name == ".." ? fallback : name;
+}
+
+// --g2o / --tum: the pose graph of a successful merge (nothing written otherwise).
+void writePoseGraph(const pcr_pro::tools::Arguments& args, const pcr_pro::MergeResult& result,
+                    const pcr_pro::AgentMap& source, const std::string& source_dir, const pcr_pro::AgentMap& target,
+                    const std::string& target_dir) {
+  using namespace pcr_pro;
+  const auto g2o_file = args.value("--g2o");
+  const auto tum_file = args.value("--tum");
+  if (!g2o_file && !tum_file) return;
+  const std::optional<MergeEdge> edge = poseGraphEdge(result);
+  if (!edge) {
+    std::cerr << "pcr_pro_merge: not merged: no pose graph written\n";
+    return;
+  }
+  std::string target_name = agentName(target_dir, "target"), source_name = agentName(source_dir, "source");
+  if (target_name == source_name) {
+    target_name = "target";
+    source_name = "source";
+  }
+  const PoseGraph graph = mergePoseGraph(target, target_name, source, source_name, *edge);
+  if (g2o_file) writeTextFileAtomically(*g2o_file, toG2o(graph));
+  if (tum_file) writeTextFileAtomically(*tum_file, toTum(graph));
+}
+
 int run(int argc, char** argv) {
   using namespace pcr_pro;
   for (int i = 1; i < argc; ++i) {
@@ -37,7 +75,9 @@ int run(int argc, char** argv) {
     }
   }
   const tools::Arguments args(
-      argc, argv, {"--source", "--target", "--config", "--output", "--source-keyframe", "--target-keyframe", "--seed"}, {});
+      argc, argv, {"--source", "--target", "--config", "--output", "--source-keyframe", "--target-keyframe", "--seed",
+                   "--g2o", "--tum"},
+      {});
   const std::string source_dir = args.required("--source");
   const std::string target_dir = args.required("--target");
   MergeOptions options;
@@ -70,6 +110,7 @@ int run(int argc, char** argv) {
     }
     tools::writeOutputs(*out, yaml, fused);
   }
+  writePoseGraph(args, result, source, source_dir, target, target_dir);
   return tools::exitStatus(result.report);
 }
 

@@ -736,6 +736,7 @@ TEST_F(Live, ShippedNodeConfigStatesTheStructDefaults) {
   EXPECT_EQ(shipped.seed, d.seed);
   EXPECT_EQ(shipped.diagnostic_period, d.diagnostic_period);
   EXPECT_EQ(shipped.max_history_per_pair, d.max_history_per_pair);
+  EXPECT_EQ(shipped.g2o_file, d.g2o_file);
   EXPECT_EQ(shipped.auto_merge.enabled, d.auto_merge.enabled);
   EXPECT_EQ(shipped.auto_merge.target, d.auto_merge.target);
   EXPECT_EQ(shipped.auto_merge.min_keyframes, d.auto_merge.min_keyframes);
