@@ -87,8 +87,10 @@ int run(int argc, char** argv) {
   if (const auto id = args.value("--source-keyframe")) request.source_keyframe = parseId("--source-keyframe", *id);
   if (const auto id = args.value("--target-keyframe")) request.target_keyframe = parseId("--target-keyframe", *id);
 
-  const AgentMap source = loadBundle(source_dir, options.limits);
-  const AgentMap target = loadBundle(target_dir, options.limits);
+  std::vector<std::string> warnings;
+  const AgentMap source = loadBundle(source_dir, options.limits, &warnings);
+  const AgentMap target = loadBundle(target_dir, options.limits, &warnings);
+  for (const std::string& w : warnings) std::cerr << "pcr_pro_merge: warning: " << w << "\n";
   for (const auto& [id, map, dir] : {std::tuple{request.source_keyframe, &source, source_dir},
                                      std::tuple{request.target_keyframe, &target, target_dir}}) {
     if (!id) continue;

@@ -136,6 +136,15 @@ TEST(LsdSlamMessages, GraphRoundTripAndCountChecks) {
   bad = msg;
   std::memset(&bad.frameData[4], 0, 16);  // zero quaternion of the first pose
   EXPECT_THROW(lsdGraphFromMsg(bad), InputError);
+  // two poses of one keyframe id: refused, naming the entry and the id
+  LsdGraph twice;
+  twice.poses = {{3, someSim3()}, {5, Sim3()}, {3, Sim3()}};
+  try {
+    lsdGraphFromMsg(lsdGraphToMsg(twice));
+    ADD_FAILURE() << "a duplicate keyframe id was accepted";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()), "frameData[2]: duplicate keyframe id 3 (also frameData[0])");
+  }
 }
 
 // --- LSD viewer filters -----------------------------------------------------------------------
