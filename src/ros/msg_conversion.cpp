@@ -11,7 +11,7 @@
 #include <map>
 #include <sstream>
 
-#include "pcr_pro/io/quaternion_check.h"
+#include "pcr_pro/io/plausibility.h"
 
 namespace pcr_pro {
 namespace ros_bridge {
@@ -117,6 +117,7 @@ PinholeCamera cameraFromMsg(const sensor_msgs::CameraInfo& msg) {
     fail("camera_info", "image size must be > 0 and <= " + str(kMaxImageSide) + " a side, got " + str(msg.width) +
                             "x" + str(msg.height));
   }
+  if (const auto problem = implausibleIntrinsics(c)) fail(field, problem->first + ": " + problem->second);
   if (msg.binning_x > 1 || msg.binning_y > 1) {
     fail("camera_info.binning", "binning " + str(msg.binning_x) + "x" + str(msg.binning_y) + " is not supported (0 or 1)");
   }

@@ -243,6 +243,24 @@ TEST(Conversions, BadKeyframesAreRejected) {
   auto bad = good;
   bad.camera_info.P[0] = 0.0;  // zero intrinsics
   EXPECT_THROW(keyframeFromMsg(bad), InputError);
+  // implausible intrinsics (plausibility.h): one-line errors naming the matrix and the entry
+  const auto message = [](const pcr_pro::Keyframe& m) {
+    try {
+      keyframeFromMsg(m);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  bad = good;
+  bad.camera_info.P[5] = 0.5;  // fy below one pixel
+  EXPECT_EQ(message(bad).rfind("camera_info.P: fy: a focal length below one pixel", 0), 0u) << message(bad);
+  bad = good;
+  bad.camera_info.P[2] = 3.0 * good.camera_info.width;  // cx beyond twice the width
+  EXPECT_EQ(message(bad).rfind("camera_info.P: cx: principal point far outside the image", 0), 0u) << message(bad);
+  bad = good;
+  bad.camera_info.P[2] = 1.9 * good.camera_info.width;  // odd but within the bound: accepted
+  EXPECT_EQ(message(bad), "accepted");
   bad = good;
   bad.camera_info.width = 320;  // image size vs camera_info
   EXPECT_THROW(keyframeFromMsg(bad), InputError);

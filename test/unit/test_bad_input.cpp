@@ -24,7 +24,7 @@
 #include <vector>
 
 #include "pcr_pro/io/bundle.h"
-#include "pcr_pro/io/quaternion_check.h"
+#include "pcr_pro/io/plausibility.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 
 namespace pcr_pro {

@@ -43,7 +43,7 @@ namespace pcr_pro {
  *   are those of readCloud() followed by " (cloud)".
  * @param[out] warnings when given, one line per oddity that does not stop the reading, e.g.
  *   "bundles/a/bundle.yaml: keyframes[2].pose.orientation: quaternion norm 1.5 is not 1
- *   (|norm - 1| > 0.001); normalised (line 23)" (quaternion_check.h)
+ *   (|norm - 1| > 0.001); normalised (line 23)" (plausibility.h)
  */
 AgentMap loadBundle(const std::string& dir, const InputLimits& limits = InputLimits(),
                     std::vector<std::string>* warnings = nullptr);

@@ -18,13 +18,12 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <sstream>
-#include <tuple>
 #include <utility>
 #include <vector>
 
 #include "pcr_pro/io/cloud_io.h"
 #include "pcr_pro/io/file_errors.h"
-#include "pcr_pro/io/quaternion_check.h"
+#include "pcr_pro/io/plausibility.h"
 #include "pcr_pro/io/text_escape.h"
 
 namespace pcr_pro {
@@ -452,19 +451,8 @@ Sim3 parseSim3(const FieldReader& reader, const YAML::Node& node, const std::str
 // image is no camera anyone calibrated: a unit or field mix-up (metres, normalised coordinates,
 // cx and width swapped) that would otherwise give a merge without any error.
 void checkIntrinsics(const FieldReader& reader, const Fields& cam, const PinholeCamera& camera) {
-  for (const auto& [key, f] : {std::pair{"fx", camera.fx}, std::pair{"fy", camera.fy}}) {
-    if (f < 1.0) {
-      reader.fail(std::string("camera.") + key, reader.require(cam, key),
-                  "a focal length below one pixel (" + numberText(f) + " px): must be >= 1 px");
-    }
-  }
-  for (const auto& [key, c, size] : {std::tuple{"cx", camera.cx, camera.width}, std::tuple{"cy", camera.cy, camera.height}}) {
-    if (c < -size || c > 2.0 * size) {
-      reader.fail(std::string("camera.") + key, reader.require(cam, key),
-                  "principal point far outside the image (" + numberText(c) + " px): must be in [-" +
-                      std::string(key[1] == 'x' ? "width" : "height") + ", 2 " + (key[1] == 'x' ? "width" : "height") +
-                      "] = [" + std::to_string(-size) + ", " + std::to_string(2 * size) + "] px");
-    }
+  if (const auto problem = implausibleIntrinsics(camera)) {
+    reader.fail("camera." + problem->first, reader.require(cam, problem->first), problem->second);
   }
 }
 
