@@ -6,6 +6,7 @@
 #include <sstream>
 #include <tuple>
 
+#include "pcr_pro/io/pose_graph.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
@@ -544,6 +545,7 @@ Response MergeNode::merge(const MergeJob& job) {
       response = answer(statusCode(r.status), statusName(r.status), r.message);
       if (r.status == Status::kOk && r.transform && r.covariance) {
         publishMerge(job, s, source_map, t, target_map, r, r.message, &response.edge);
+        if (!options_.g2o_file.empty()) writePoseGraph(job, source_map, target_map, result);
       } else if (r.status == Status::kOk) {
         response = answer(Response::INVALID_INPUT, "INVALID_INPUT", "the pipeline said OK without an edge: " + r.message);
       }
@@ -579,6 +581,19 @@ void MergeNode::publishMerge(const MergeJob& job, const Snapshot& source, const 
            job.source.c_str(), job.target.c_str(), job.trigger.c_str(), s.scale(), edge->scale_stddev,
            s.translation().x(), s.translation().y(), s.translation().z(), static_cast<long>(edge->source_keyframe),
            static_cast<long>(edge->target_keyframe), edge->fitness_rmse, edge->correspondences);
+}
+
+void MergeNode::writePoseGraph(const MergeJob& job, const AgentMap& source_map, const AgentMap& target_map,
+                               const MergeResult& result) const {
+  const std::optional<MergeEdge> edge = poseGraphEdge(result);
+  if (!edge) return;
+  try {
+    writeTextFileAtomically(options_.g2o_file,
+                            toG2o(mergePoseGraph(target_map, job.target, source_map, job.source, *edge)));
+  } catch (const InputError& e) {
+    ROS_WARN("~g2o_file: the pose graph of %s -> %s was not written: %s", job.source.c_str(), job.target.c_str(),
+             e.what());
+  }
 }
 
 void MergeNode::recordHistory(const MergeJob& job, const pcr_pro::MapEdge& edge, const std::string& message) {

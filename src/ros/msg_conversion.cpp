@@ -2,12 +2,16 @@
 #include "pcr_pro/ros/msg_conversion.h"
 
 #include <opencv2/imgproc.hpp>
+#include <ros/console.h>
 #include <sensor_msgs/image_encodings.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <map>
 #include <sstream>
+
+#include "pcr_pro/io/plausibility.h"
 
 namespace pcr_pro {
 namespace ros_bridge {
@@ -69,26 +73,6 @@ void checkScale(double s, const std::string& field) {
 
 }  // namespace
 
-// --- text from messages -----------------------------------------------------------------------
-
-std::string printable(const std::string& text, std::size_t max_length) {
-  std::string out;
-  const std::size_t n = std::min(text.size(), max_length);
-  for (std::size_t i = 0; i < n; ++i) {
-    const unsigned char c = static_cast<unsigned char>(text[i]);
-    if (c >= 0x20 && c < 0x7f) {
-      out += static_cast<char>(c);
-    } else {
-      static const char* hex = "0123456789abcdef";
-      out += "\\x";
-      out += hex[c >> 4];
-      out += hex[c & 15];
-    }
-  }
-  if (text.size() > max_length) out += "...";
-  return out;
-}
-
 // --- camera and poses -------------------------------------------------------------------------
 
 namespace {
@@ -133,6 +117,7 @@ PinholeCamera cameraFromMsg(const sensor_msgs::CameraInfo& msg) {
     fail("camera_info", "image size must be > 0 and <= " + str(kMaxImageSide) + " a side, got " + str(msg.width) +
                             "x" + str(msg.height));
   }
+  if (const auto problem = implausibleIntrinsics(c)) fail(field, problem->first + ": " + problem->second);
   if (msg.binning_x > 1 || msg.binning_y > 1) {
     fail("camera_info.binning", "binning " + str(msg.binning_x) + "x" + str(msg.binning_y) + " is not supported (0 or 1)");
   }
@@ -172,6 +157,8 @@ Sim3 sim3FromPose(const geometry_msgs::Pose& pose, double scale) {
   const Eigen::Quaterniond quat(q.w, q.x, q.y, q.z);
   const double n = quat.norm();
   if (!finite(n) || n < 1e-9) fail("pose.orientation", "must be a finite, non-zero quaternion");
+  const std::string norm_warning = quaternionNormWarning(n, "pose.orientation");
+  if (!norm_warning.empty()) ROS_WARN_THROTTLE(10.0, "%s", norm_warning.c_str());
   if (!finite(scale) || !(scale > 0.0)) fail("scale", "must be finite and > 0, got " + str(scale));
   checkScale(scale, "scale");
   return Sim3(scale, quat.normalized(), Eigen::Vector3d(p.x, p.y, p.z));
@@ -594,12 +581,18 @@ LsdGraph lsdGraphFromMsg(const lsd_slam_viewer::keyframeGraphMsg& msg) {
          "size " + str(msg.constraintsData.size()) + " != numConstraints * 12 = " + str(msg.numConstraints) + " * 12");
   }
   LsdGraph graph;
+  std::map<std::int32_t, std::uint32_t> first_of;  // keyframe id -> its first frameData entry
   for (std::uint32_t i = 0; i < msg.numFrames; ++i) {
     const std::uint8_t* p = &msg.frameData[i * kLsdFramePoseBytes];
     std::int32_t id;
     float v[7];
     std::memcpy(&id, p, 4);
     std::memcpy(v, p + 4, 28);
+    // Two poses for one keyframe: which one holds is undefined, so the message is refused.
+    const auto [it, fresh] = first_of.emplace(id, i);
+    if (!fresh) {
+      fail("frameData[" + str(i) + "]", "duplicate keyframe id " + str(id) + " (also frameData[" + str(it->second) + "])");
+    }
     try {
       graph.poses.emplace_back(id, sim3FromLsd(v));
     } catch (const InputError& e) {

@@ -6,9 +6,11 @@
 
 #include <algorithm>
 #include <cctype>
+#include <filesystem>
 #include <set>
 #include <sstream>
 
+#include "pcr_pro/io/text_escape.h"
 #include "pcr_pro/merge/seed.h"
 #include "pcr_pro/registration/config.h"
 
@@ -156,6 +158,15 @@ void validate(const NodeOptions& o) {
   if (o.max_history_per_pair < 1) {
     fail("max_history_per_pair", "must be >= 1, got " + std::to_string(o.max_history_per_pair));
   }
+  if (!o.g2o_file.empty()) {
+    const std::filesystem::path file(o.g2o_file);
+    std::error_code ec;
+    if (std::filesystem::is_directory(file, ec)) fail("g2o_file", "'" + printable(o.g2o_file, 200) + "' is a directory");
+    const std::filesystem::path dir = file.has_parent_path() ? file.parent_path() : std::filesystem::path(".");
+    if (!std::filesystem::is_directory(dir, ec)) {
+      fail("g2o_file", "directory '" + printable(dir.string(), 200) + "' does not exist");
+    }
+  }
   if (!o.auto_merge.target.empty() && !names.count(o.auto_merge.target)) {
     fail("auto_merge/target", "'" + o.auto_merge.target + "' is not one of ~agents");
   }
@@ -205,6 +216,7 @@ NodeOptions loadNodeOptions(const ros::NodeHandle& pnh) {
   p.read("seed", &o.seed);
   p.read("diagnostic_period", &o.diagnostic_period);
   p.read("max_history_per_pair", &o.max_history_per_pair);
+  p.read("g2o_file", &o.g2o_file);
   p.read("auto_merge/enabled", &o.auto_merge.enabled);
   p.read("auto_merge/target", &o.auto_merge.target);
   p.read("auto_merge/min_keyframes", &o.auto_merge.min_keyframes);
@@ -216,7 +228,7 @@ NodeOptions loadNodeOptions(const ros::NodeHandle& pnh) {
   std::set<std::string> known{"agents", "input", "queue_size", "publish_tf", "merge_config", "icp_config",
                               "lsd/scaled_depth_var_th", "lsd/abs_depth_var_th", "lsd/min_near_support",
                               "lsd/sparsify_factor", "max_keyframes_per_agent", "max_cloud_points_per_agent",
-                              "seed", "diagnostic_period", "max_history_per_pair", "auto_merge/enabled",
+                              "seed", "diagnostic_period", "max_history_per_pair", "g2o_file", "auto_merge/enabled",
                               "auto_merge/target", "auto_merge/min_keyframes", "auto_merge/new_keyframes",
                               "auto_merge/after_graph_update", "auto_merge/period"};
   for (const AgentOptions& a : o.agents) known.insert(a.name + "/frame_id");

@@ -103,6 +103,13 @@ TEST(NodeOptions, NewRangesAreEnforcedNamingTheKey) {
   refused([](NodeOptions& o) { o.seed = -1; }, "seed");
   refused([](NodeOptions& o) { o.seed = 2147483648LL; }, "seed");
   refused([](NodeOptions& o) { o.max_history_per_pair = 0; }, "max_history_per_pair");
+  refused([](NodeOptions& o) { o.g2o_file = "/nonexistent_pcr_pro_dir/graph.g2o"; }, "g2o_file");
+  refused([](NodeOptions& o) { o.g2o_file = "/tmp"; }, "g2o_file");
+  EXPECT_NO_THROW(validate([] {
+    NodeOptions o;
+    o.g2o_file = "/tmp/pcr_pro_graph.g2o";
+    return o;
+  }()));
   refused([](NodeOptions& o) { o.auto_merge.target = "agent_x"; }, "auto_merge/target");
   refused([](NodeOptions& o) { o.auto_merge.period = 0.0; }, "auto_merge/period");
   refused([](NodeOptions& o) { o.agents[1].frame_id = "agent_a/map_scaled"; }, "agent_b/frame_id");

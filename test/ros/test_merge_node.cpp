@@ -17,6 +17,8 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <functional>
 #include <map>
 #include <mutex>
@@ -31,6 +33,7 @@
 #include "pcr_pro/GetEdges.h"
 #include "pcr_pro/MergeMaps.h"
 #include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/pose_graph.h"
 #include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
 #include "pcr_pro/ros/node_options.h"
@@ -628,6 +631,42 @@ TEST_F(Requests, RectifiedKeyframesTakeTheirIntrinsicsFromP) {
   expectNear(edgeFromMsg(r.edge).target_source, truth() * g.inverse(), "image_rect + camera_info (P)");
 }
 
+// ~g2o_file (set by merge_node_requests.test): a successful merge writes its pose graph, both
+// agents' keyframes and the edge between the edge's anchor keyframes.
+TEST_F(Requests, ASuccessfulMergeWritesThePoseGraph) {
+  std::string file;
+  ASSERT_TRUE(ros::param::get("/merge_node/g2o_file", file));
+  std::filesystem::remove(file);
+  DiagnosticsWatcher diagnostics(nh_);
+  publishAgent("agent_a");
+  publishAgent("agent_b");
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", "1, 2, 4"));
+  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "keyframe_ids", "3, 5"));
+  ros::WallDuration(0.5).sleep();  // the last cloud
+  const Response r = callMerge();
+  ASSERT_EQ(r.status, Response::OK) << r.message;
+  std::ifstream in(file);
+  ASSERT_TRUE(in.good()) << file;
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const PoseGraph g = parseG2o(text, file);
+  ASSERT_EQ(g.vertices.size(), 5u);
+  ASSERT_EQ(g.edges.size(), 1u);
+  const PoseGraphVertex& from = g.vertices[static_cast<std::size_t>(g.edges[0].from)];
+  const PoseGraphVertex& to = g.vertices[static_cast<std::size_t>(g.edges[0].to)];
+  EXPECT_EQ(from.agent, "agent_a");
+  EXPECT_EQ(from.keyframe, r.edge.target_keyframe);
+  EXPECT_EQ(to.agent, "agent_b");
+  EXPECT_EQ(to.keyframe, r.edge.source_keyframe);
+  // the source vertices are in the target map: S_target_source of the response times their pose
+  const Sim3 s = edgeFromMsg(r.edge).target_source;
+  const AgentMap b = loadBundle(kDataDir + "/bundles/depth/agent_b");
+  for (const MapKeyframe& kf : b.keyframes) {
+    if (kf.id != to.keyframe) continue;
+    const Sim3 expected = s * kf.pose;
+    EXPECT_LT((to.camera_to_world.matrix() - expected.matrix()).cwiseAbs().maxCoeff(), 1e-6 * (1 + expected.translation().norm()));
+  }
+}
+
 // ~seed: the same data merged twice gives the same edge, bit for bit.
 TEST_F(Requests, IdenticalCallsGiveIdenticalEdges) {
   DiagnosticsWatcher diagnostics(nh_);
@@ -820,6 +859,7 @@ TEST_F(Live, ShippedNodeConfigStatesTheStructDefaults) {
   EXPECT_EQ(shipped.seed, d.seed);
   EXPECT_EQ(shipped.diagnostic_period, d.diagnostic_period);
   EXPECT_EQ(shipped.max_history_per_pair, d.max_history_per_pair);
+  EXPECT_EQ(shipped.g2o_file, d.g2o_file);
   EXPECT_EQ(shipped.auto_merge.enabled, d.auto_merge.enabled);
   EXPECT_EQ(shipped.auto_merge.target, d.auto_merge.target);
   EXPECT_EQ(shipped.auto_merge.min_keyframes, d.auto_merge.min_keyframes);

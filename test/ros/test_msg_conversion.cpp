@@ -136,6 +136,15 @@ TEST(LsdSlamMessages, GraphRoundTripAndCountChecks) {
   bad = msg;
   std::memset(&bad.frameData[4], 0, 16);  // zero quaternion of the first pose
   EXPECT_THROW(lsdGraphFromMsg(bad), InputError);
+  // two poses of one keyframe id: refused, naming the entry and the id
+  LsdGraph twice;
+  twice.poses = {{3, someSim3()}, {5, Sim3()}, {3, Sim3()}};
+  try {
+    lsdGraphFromMsg(lsdGraphToMsg(twice));
+    ADD_FAILURE() << "a duplicate keyframe id was accepted";
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()), "frameData[2]: duplicate keyframe id 3 (also frameData[0])");
+  }
 }
 
 // --- LSD viewer filters -----------------------------------------------------------------------
@@ -235,6 +244,24 @@ TEST(Conversions, BadKeyframesAreRejected) {
   auto bad = good;
   bad.camera_info.P[0] = 0.0;  // zero intrinsics
   EXPECT_THROW(keyframeFromMsg(bad), InputError);
+  // implausible intrinsics (plausibility.h): one-line errors naming the matrix and the entry
+  const auto message = [](const pcr_pro::Keyframe& m) {
+    try {
+      keyframeFromMsg(m);
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  bad = good;
+  bad.camera_info.P[5] = 0.5;  // fy below one pixel
+  EXPECT_EQ(message(bad).rfind("camera_info.P: fy: a focal length below one pixel", 0), 0u) << message(bad);
+  bad = good;
+  bad.camera_info.P[2] = 3.0 * good.camera_info.width;  // cx beyond twice the width
+  EXPECT_EQ(message(bad).rfind("camera_info.P: cx: principal point far outside the image", 0), 0u) << message(bad);
+  bad = good;
+  bad.camera_info.P[2] = 1.9 * good.camera_info.width;  // odd but within the bound: accepted
+  EXPECT_EQ(message(bad), "accepted");
   bad = good;
   bad.camera_info.width = 320;  // image size vs camera_info
   EXPECT_THROW(keyframeFromMsg(bad), InputError);

@@ -27,6 +27,7 @@
 
 #include "common/sim_worlds.h"
 #include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/plausibility.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 
 namespace pcr_pro {
@@ -130,9 +131,11 @@ void expectBadInput(const ToolRun& r, const std::string& file, const std::vector
   ASSERT_FALSE(r.err.empty());
   EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "not one line: " << r.err;
   EXPECT_EQ(r.err.back(), '\n') << r.err;
-  const bool printable = std::all_of(r.err.begin(), r.err.end() - 1,
-                                     [](char c) { return static_cast<unsigned char>(c) >= 0x20 && c != 0x7f; });
-  EXPECT_TRUE(printable) << "control characters in the message: " << r.err;
+  // printable ASCII only: no control character, and bytes from files escaped as \xNN (valid UTF-8)
+  const bool printable = std::all_of(r.err.begin(), r.err.end() - 1, [](char c) {
+    return static_cast<unsigned char>(c) >= 0x20 && static_cast<unsigned char>(c) < 0x7f;
+  });
+  EXPECT_TRUE(printable) << "control characters or non-ASCII bytes in the message: " << r.err;
   EXPECT_NE(r.err.find(file), std::string::npos) << "does not name " << file << ": " << r.err;
   for (const std::string& m : mentions) EXPECT_NE(r.err.find(m), std::string::npos) << "lacks '" << m << "': " << r.err;
   EXPECT_TRUE(r.out.empty()) << "stdout: " << r.out;
@@ -383,6 +386,11 @@ std::vector<BundleDefect> bundleDefects() {
       {"IdHuge", "- id: 1", "- id: 123456789012345678901234567890", nullptr, y, {"keyframes[0].id", "integer"}, ""},
       {"DuplicateId", "- id: 2", "- id: 1", nullptr, y, {"keyframes[1].id", "duplicate"}, ""},
       {"ZeroQuaternion", q1, "[0, 0, 0, 0]", nullptr, y, {"keyframes[0].pose.orientation", "zero quaternion"}, ""},
+      // intrinsics no calibration gives (a unit mix-up): one pixel and one image size are the bounds
+      {"FocalBelowOnePixel", "fx: 518.0", "fx: 0.518", nullptr, y, {"camera.fx", "below one pixel"}, ""},
+      {"PrincipalPointFarOutside", "cy: 253.5", "cy: 2530.5", nullptr, y, {"camera.cy", "principal point far outside", "[-480, 960]"}, ""},
+      // a non-UTF-8 byte and an escape sequence in a YAML value are quoted escaped
+      {"YamlValueBytesEscaped", "fy: 519.0", "fy: \"\\xff\\x1b[31m\"", nullptr, y, {"camera.fy", "\\x1b[31m"}, ""},
       {"QuaternionTooShort", q1, "[0, 0, 1]", nullptr, y, {"keyframes[0].pose.orientation", "4 numbers"}, ""},
       {"QuaternionInf", q1, "[0, 0, 0, .inf]", nullptr, y, {"keyframes[0].pose.orientation[3]", "finite"}, ""},
       {"PositionWord", p1, "[0.2, up, 0.8]", nullptr, y, {"keyframes[0].pose.position[1]", "number"}, ""},
@@ -545,6 +553,58 @@ TEST_P(MergeBadBundle, ExitsTwoWithOneLineNamingFileAndField) {
   fs::remove_all(copy);
 }
 
+// A quaternion far from unit norm is used normalised, with a warning naming the field and line.
+TEST(QuaternionNorm, FarFromUnitIsAWarning) {
+  EXPECT_EQ(quaternionNormWarning(1.0 + 0.9 * kQuaternionNormTolerance, "q"), "");
+  EXPECT_EQ(quaternionNormWarning(1.0 - 0.9 * kQuaternionNormTolerance, "q"), "");
+  EXPECT_EQ(quaternionNormWarning(1.5, "a.orientation"), "a.orientation: quaternion norm 1.5 is not 1 (|norm - 1| > 0.001); normalised");
+  EXPECT_NE(quaternionNormWarning(1.0 - 2 * kQuaternionNormTolerance, "q"), "");
+  const fs::path copy = scratch() / "quaternion_norm";
+  fs::remove_all(copy);
+  fs::copy(kAgentA, copy, fs::copy_options::recursive);
+  const std::string q1 = "[0.048973829433, 0.093757233154, -0.079169264539, 0.991233258529]";
+  const std::string q1_doubled = "[0.097947658866, 0.187514466308, -0.158338529078, 1.982466517058]";
+  std::string text = readText(copy / "bundle.yaml");
+  ASSERT_NE(text.find(q1), std::string::npos);
+  std::vector<std::string> warnings;
+  const AgentMap plain = loadBundle(copy.string(), InputLimits(), &warnings);
+  EXPECT_TRUE(warnings.empty()) << warnings.front();
+  text.replace(text.find(q1), q1.size(), q1_doubled);
+  writeBytes(copy / "bundle.yaml", text);
+  const AgentMap doubled = loadBundle(copy.string(), InputLimits(), &warnings);
+  ASSERT_EQ(warnings.size(), 1u);
+  EXPECT_EQ(warnings[0].rfind((copy / "bundle.yaml").string() + ": keyframes[0].pose.orientation: quaternion norm 2", 0), 0u)
+      << warnings[0];
+  EXPECT_NE(warnings[0].find("(line "), std::string::npos) << warnings[0];
+  // used normalised: the same rotation
+  EXPECT_LT((doubled.keyframes[0].pose.rotation() - plain.keyframes[0].pose.rotation()).cwiseAbs().maxCoeff(), 1e-9);
+  fs::remove_all(copy);
+}
+
+// A symlink loop (ELOOP) is reported as one, not as a missing file: a cloud, a bundle directory,
+// and a bundle's bundle.yaml and image.
+TEST(SymlinkLoop, IsReportedAsOne) {
+  const fs::path dir = scratch() / "symlink_loop";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  fs::create_symlink(dir / "b.pcd", dir / "a.pcd");
+  fs::create_symlink(dir / "a.pcd", dir / "b.pcd");
+  const std::string loop = (dir / "a.pcd").string();
+  expectBadInput(runTool(PCR_PRO_ICP_BIN, "--source " + loop + " --target " + goodCloud()), loop, {"symlink loop"});
+  fs::create_symlink(dir / "bundle_b", dir / "bundle_a");
+  fs::create_symlink(dir / "bundle_a", dir / "bundle_b");
+  const std::string bundle = (dir / "bundle_a").string();
+  expectBadInput(runTool(PCR_PRO_MERGE_BIN, "--source " + bundle + " --target " + kAgentA), bundle, {"symlink loop"});
+  const fs::path copy = dir / "copy";
+  fs::copy(kAgentA, copy, fs::copy_options::recursive);
+  fs::remove(copy / "keyframes/1.png");
+  fs::create_symlink(copy / "keyframes/1.png", copy / "keyframes/1.png");  // points at itself
+  const std::string image = (copy / "keyframes/1.png").string();
+  expectBadInput(runTool(PCR_PRO_MERGE_BIN, "--source " + copy.string() + " --target " + kAgentB), image,
+                 {"symlink loop", "(keyframes[0].image)"});
+  fs::remove_all(dir);
+}
+
 INSTANTIATE_TEST_SUITE_P(Defects, MergeBadBundle, ::testing::ValuesIn(bundleDefects()),
                          [](const ::testing::TestParamInfo<BundleDefect>& info) { return info.param.name; });
 
@@ -573,6 +633,9 @@ std::vector<CloudDefect> cloudDefects() {
       {"EmptyCsv", "empty.csv", "", {"empty"}, "", ""},
       {"GarbagePcd", "garbage.pcd", garbage(2000, 13), {"PCD"}, "", ""},
       {"GarbageCsv", "garbage.csv", garbage(2000, 17), {"line"}, "", ""},
+      // bytes from the file are quoted escaped (\xNN): no control character, valid UTF-8
+      {"HeaderBytesEscaped", "bytes.pcd", "VERSION 0.7\nFIELDS x y z\n\x01\xfe\x1b[31m\n", {"unexpected header line", "\\x01\\xfe\\x1b[31m"}, "", ""},
+      {"CsvBytesEscaped", "bytes.csv", "x,y,z\n1,2,\xff\x07\n", {"non-number", "\\xff\\x07"}, "", ""},
       {"NoDataLine", "nodata.pcd", "FIELDS x y z\nSIZE 4 4 4\n", {"DATA"}, "", ""},
       {"NoXyz", "noxyz.pcd", pcdHeader("a b c", "4 4 4", "F F F", "1 1 1", "3", "binary") + three, {"x y z"}, "", ""},
       {"BadSize",

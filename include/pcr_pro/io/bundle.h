@@ -8,6 +8,7 @@
 
 #include <map>
 #include <string>
+#include <vector>
 
 #include "pcr_pro/io/input_limits.h"
 #include "pcr_pro/geometry/map_types.h"
@@ -40,8 +41,12 @@ namespace pcr_pro {
  *   "bundles/a/bundle.yaml: keyframes[2].pose.scale: must be > 0, got 0 (line 23)" or
  *   "bundles/a/keyframes/3.png: cannot read image (keyframes[0].image)". Errors of the map cloud
  *   are those of readCloud() followed by " (cloud)".
+ * @param[out] warnings when given, one line per oddity that does not stop the reading, e.g.
+ *   "bundles/a/bundle.yaml: keyframes[2].pose.orientation: quaternion norm 1.5 is not 1
+ *   (|norm - 1| > 0.001); normalised (line 23)" (plausibility.h)
  */
-AgentMap loadBundle(const std::string& dir, const InputLimits& limits = InputLimits());
+AgentMap loadBundle(const std::string& dir, const InputLimits& limits = InputLimits(),
+                    std::vector<std::string>* warnings = nullptr);
 
 /**
  * @brief Ground truth of a two-agent case (CASE/truth.yaml, written by writeBundleTruth(); see

@@ -12,8 +12,10 @@
  */
 #pragma once
 
+#include <optional>
 #include <string>
 
+#include "pcr_pro/io/pose_graph.h"
 #include "pcr_pro/io/report.h"
 #include "pcr_pro/merge/keyframe_front_end.h"
 #include "pcr_pro/merge/map_registration.h"
@@ -93,6 +95,13 @@ class MergePipeline {
   SimilarityInitializer initializer_;
   MergeGates gates_;
 };
+
+/**
+ * @brief The merge's edge as the pose-graph export takes it (io/pose_graph.h): S_target_source,
+ * its 7x7 covariance (MergeDiagnostics::covariance) and the anchor keyframe pair.
+ * @return the edge when the merge is OK (report.status OK with a keyframe edge); empty otherwise
+ */
+std::optional<MergeEdge> poseGraphEdge(const MergeResult& result);
 
 /**
  * @brief One merge with a pipeline of its own (no cache kept): MergePipeline(options).merge().

@@ -130,6 +130,9 @@ class MergeNode {
                     const AgentMap& target_map, const RegistrationReport& report, const std::string& message,
                     pcr_pro::MapEdge* edge);
   void recordHistory(const MergeJob& job, const pcr_pro::MapEdge& edge, const std::string& message);
+  /// `~g2o_file`: the pose graph of a successful merge (io/pose_graph.h); a write error is a warning.
+  void writePoseGraph(const MergeJob& job, const AgentMap& source_map, const AgentMap& target_map,
+                      const MergeResult& result) const;
   /// Logs a merge that did not succeed and counts every outcome for the diagnostics.
   void noteOutcome(const MergeJob& job, const pcr_pro::MergeMaps::Response& response);
   Agent* findAgent(const std::string& name) const;

@@ -27,18 +27,16 @@
 #include "pcr_pro/geometry/sim3.h"
 #include "pcr_pro/geometry/types.h"
 #include "pcr_pro/io/lsd_keyframe.h"
+#include "pcr_pro/io/text_escape.h"
 
 namespace pcr_pro {
 namespace ros_bridge {
 
 // --- text from messages -----------------------------------------------------------------------
 
-/**
- * @brief A string taken from a message (an encoding, a frame id, an agent name) made safe to quote
- * in a one-line log or error message: bytes outside printable ASCII become "\xNN", and a string
- * longer than max_length is cut there with "...".
- */
-std::string printable(const std::string& text, std::size_t max_length = 64);
+/// A string taken from a message (an encoding, a frame id, an agent name) made safe to quote in a
+/// one-line log or error message (the core's pcr_pro::printable(), io/text_escape.h).
+using pcr_pro::printable;
 
 // --- camera and poses -------------------------------------------------------------------------
 

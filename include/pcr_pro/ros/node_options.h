@@ -72,6 +72,10 @@ struct NodeOptions {
   /// `~max_history_per_pair`: most successful edges kept per agent pair in the merge history
   /// (`~edge_history`, `~edges`); beyond it the oldest goes [edges], >= 1.
   int max_history_per_pair = 1000;
+  /// `~g2o_file`: after each successful merge, the merge's pose graph (io/pose_graph.h: both
+  /// agents' keyframes in the target map, the edge with its information) is written to this g2o
+  /// file, replacing the previous one (the latest merge); empty = off.
+  std::string g2o_file;
   /// The pipeline configuration read from merge_config / icp_config, seeded with `seed`.
   MergeOptions merge;
 
@@ -82,7 +86,8 @@ struct NodeOptions {
 /// @throw InputError "~key: what" for the first invalid option (agents: at least two, unique
 /// valid relative names; frame ids non-empty, unique, no leading slash, none the scaled frame of
 /// another; queue_size >= 1; lsd filters; store limits; seed; diagnostic_period; auto_merge, whose
-/// target must be an agent; max_history_per_pair)
+/// target must be an agent; max_history_per_pair; g2o_file not a directory and in an
+/// existing directory)
 void validate(const NodeOptions& options);
 
 /**

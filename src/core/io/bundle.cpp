@@ -22,6 +22,9 @@
 #include <vector>
 
 #include "pcr_pro/io/cloud_io.h"
+#include "pcr_pro/io/file_errors.h"
+#include "pcr_pro/io/plausibility.h"
+#include "pcr_pro/io/text_escape.h"
 
 namespace pcr_pro {
 namespace {
@@ -46,7 +49,7 @@ std::string describe(const YAML::Node& node) {
     case YAML::NodeType::Null:
       return "null";
     case YAML::NodeType::Scalar:
-      return "'" + oneLine(node.Scalar(), 60) + "'";
+      return "'" + printable(node.Scalar(), 60) + "'";
     case YAML::NodeType::Sequence:
       return "a list";
     case YAML::NodeType::Map:
@@ -91,7 +94,8 @@ struct Fields {
 /// Validating accessors that turn every defect into an InputError naming file and field.
 class FieldReader {
  public:
-  explicit FieldReader(std::string file) : file_(std::move(file)) {}
+  explicit FieldReader(std::string file, std::vector<std::string>* warnings = nullptr)
+      : file_(std::move(file)), warnings_(warnings) {}
 
   const std::string& file() const { return file_; }
 
@@ -99,9 +103,12 @@ class FieldReader {
     std::string message = file_ + ": ";
     if (!field.empty()) message += field + ": ";
     message += problem;
-    const YAML::Mark mark = at.Mark();
-    if (mark.line >= 0) message += " (line " + std::to_string(mark.line + 1) + ")";
-    throw InputError(oneLine(message, 400));
+    throw InputError(oneLine(message + lineOf(at), 400));
+  }
+
+  /// A warning "<file>: <text> (line N)" for the caller, when it asked for warnings.
+  void warn(const YAML::Node& at, const std::string& text) const {
+    if (warnings_ && !text.empty()) warnings_->push_back(oneLine(file_ + ": " + text + lineOf(at), 400));
   }
 
   /**
@@ -198,6 +205,7 @@ class FieldReader {
     const std::vector<double> v = numbers(node, field, 4);
     Eigen::Quaterniond q(v[3], v[0], v[1], v[2]);  // stored as x y z w
     if (!(q.norm() >= 1e-12)) fail(field, node, "zero quaternion (norm < 1e-12)");
+    warn(node, quaternionNormWarning(q.norm(), field));
     q.normalize();
     return q;
   }
@@ -208,12 +216,18 @@ class FieldReader {
   }
 
  private:
+  static std::string lineOf(const YAML::Node& at) {
+    const YAML::Mark mark = at.Mark();
+    return mark.line >= 0 ? " (line " + std::to_string(mark.line + 1) + ")" : std::string();
+  }
+
   std::string file_;
+  std::vector<std::string>* warnings_ = nullptr;
 };
 
 YAML::Node loadYamlFile(const std::string& path) {
   std::error_code ec;
-  if (!fs::exists(path, ec)) throw InputError(path + ": file not found");
+  if (!fs::exists(path, ec)) throw InputError(path + ": " + missingFileReason(ec, "file not found"));
   if (!fs::is_regular_file(path, ec)) throw InputError(path + ": not a regular file");
   try {
     return YAML::LoadFile(path);
@@ -274,9 +288,9 @@ std::string pngDefect(const std::string& path, cv::Size* size) {
     if (bytes.size() - at < 12) return "truncated PNG";
     const std::uint32_t length = bigEndian32(&bytes[at]);
     const std::string type(reinterpret_cast<const char*>(&bytes[at + 4]), 4);
-    if (length > bytes.size() - at - 12) return "truncated PNG (chunk " + oneLine(type) + ")";
+    if (length > bytes.size() - at - 12) return "truncated PNG (chunk " + printable(type) + ")";
     const std::uint32_t crc = crc32(&bytes[at + 4], 4u + length, 0xffffffffu) ^ 0xffffffffu;
-    if (crc != bigEndian32(&bytes[at + 8 + length])) return "damaged PNG (bad CRC in chunk " + oneLine(type) + ")";
+    if (crc != bigEndian32(&bytes[at + 8 + length])) return "damaged PNG (bad CRC in chunk " + printable(type) + ")";
     if (first && type != "IHDR") return "damaged PNG (no IHDR chunk first)";
     if (first && length < 8) return "damaged PNG (IHDR chunk too short)";
     if (first) {
@@ -356,7 +370,7 @@ bool isJpeg(const std::string& path) {
 /// than the camera's is refused from its header, before it is decoded (bounded memory).
 cv::Mat readImageFile(const std::string& path, const std::string& field, const PinholeCamera& camera) {
   std::error_code ec;
-  if (!fs::exists(path, ec)) throw InputError(path + ": file not found (" + field + ")");
+  if (!fs::exists(path, ec)) throw InputError(path + ": " + missingFileReason(ec, "file not found") + " (" + field + ")");
   if (!fs::is_regular_file(path, ec)) throw InputError(path + ": not a regular file (" + field + ")");
   cv::Size png_size(camera.width, camera.height);
   const std::string defect = pngDefect(path, &png_size);
@@ -433,17 +447,26 @@ Sim3 parseSim3(const FieldReader& reader, const YAML::Node& node, const std::str
   return Sim3(scale, q, t);
 }
 
-AgentMap readBundle(const std::string& dir, const InputLimits& limits) {
+// A focal length below one pixel or a principal point farther than one image size outside the
+// image is no camera anyone calibrated: a unit or field mix-up (metres, normalised coordinates,
+// cx and width swapped) that would otherwise give a merge without any error.
+void checkIntrinsics(const FieldReader& reader, const Fields& cam, const PinholeCamera& camera) {
+  if (const auto problem = implausibleIntrinsics(camera)) {
+    reader.fail("camera." + problem->first, reader.require(cam, problem->first), problem->second);
+  }
+}
+
+AgentMap readBundle(const std::string& dir, const InputLimits& limits, std::vector<std::string>* warnings) {
   std::error_code ec;
-  if (!fs::exists(dir, ec)) throw InputError(dir + ": bundle directory not found");
+  if (!fs::exists(dir, ec)) throw InputError(dir + ": " + missingFileReason(ec, "bundle directory not found"));
   if (!fs::is_directory(dir, ec))
     throw InputError(dir + ": not a directory (a bundle is a directory with bundle.yaml)");
   const fs::path base(dir);
   const std::string yaml_path = (base / "bundle.yaml").string();
   if (!fs::exists(yaml_path, ec))
-    throw InputError(yaml_path + ": file not found (a bundle directory needs bundle.yaml)");
+    throw InputError(yaml_path + ": " + missingFileReason(ec, "file not found") + " (a bundle directory needs bundle.yaml)");
   const YAML::Node root = loadYamlFile(yaml_path);
-  const FieldReader reader(yaml_path);
+  const FieldReader reader(yaml_path, warnings);
 
   AgentMap map;
   std::string cloud_file;
@@ -463,6 +486,7 @@ AgentMap readBundle(const std::string& dir, const InputLimits& limits) {
     map.camera.cy = reader.number(reader.require(cam, "cy"), "camera.cy");
     map.camera.width = reader.positiveInt(reader.require(cam, "width"), "camera.width");
     map.camera.height = reader.positiveInt(reader.require(cam, "height"), "camera.height");
+    checkIntrinsics(reader, cam, map.camera);
     const long long pixels = static_cast<long long>(map.camera.width) * map.camera.height;
     if (pixels > limits.max_image_pixels) {
       reader.fail("camera.width", cam.node,
@@ -522,7 +546,7 @@ AgentMap readBundle(const std::string& dir, const InputLimits& limits) {
 
   // Files, after the whole YAML is known to be valid.
   const std::string cloud_path = (base / cloud_file).string();
-  if (!fs::exists(cloud_path, ec)) throw InputError(cloud_path + ": file not found (cloud)");
+  if (!fs::exists(cloud_path, ec)) throw InputError(cloud_path + ": " + missingFileReason(ec, "file not found") + " (cloud)");
   try {
     map.cloud = readCloud(cloud_path, limits);
   } catch (const InputError& e) {
@@ -581,9 +605,9 @@ BundleTruth readTruth(const std::string& path) {
 
 }  // namespace
 
-AgentMap loadBundle(const std::string& dir, const InputLimits& limits) {
+AgentMap loadBundle(const std::string& dir, const InputLimits& limits, std::vector<std::string>* warnings) {
   try {
-    return readBundle(dir, limits);
+    return readBundle(dir, limits, warnings);
   } catch (const InputError& e) {
     // File names and YAML text end up in messages: keep them on one line.
     throw InputError(oneLine(e.what(), 1000));

@@ -11,6 +11,9 @@
 #include <sstream>
 #include <vector>
 
+#include "pcr_pro/io/file_errors.h"
+#include "pcr_pro/io/text_escape.h"
+
 namespace pcr_pro {
 namespace {
 
@@ -31,7 +34,9 @@ std::string tooManyPoints(const std::string& origin, std::size_t points, const I
 void requireRegularFile(const std::string& path) {
   std::error_code ec;
   const auto status = std::filesystem::status(path, ec);
-  if (!std::filesystem::exists(status)) throw InputError(path + ": cannot open file (missing or unreadable)");
+  if (!std::filesystem::exists(status)) {
+    throw InputError(path + ": " + missingFileReason(ec, "cannot open file (missing or unreadable)"));
+  }
   if (!std::filesystem::is_regular_file(status)) throw InputError(path + ": not a regular file");
 }
 
@@ -114,12 +119,12 @@ std::size_t parseCount(const std::string& token, const std::string& path, const 
   try {
     v = std::stoull(token, &pos);
   } catch (const std::exception&) {
-    throw InputError(path + ": PCD header field " + key + " is not a non-negative integer: '" + token + "'");
+    throw InputError(path + ": PCD header field " + key + " is not a non-negative integer: '" + printable(token) + "'");
   }
   if (pos != token.size() || token[0] == '-') {
-    throw InputError(path + ": PCD header field " + key + " is not a non-negative integer: '" + token + "'");
+    throw InputError(path + ": PCD header field " + key + " is not a non-negative integer: '" + printable(token) + "'");
   }
-  if (v > kMaxPoints) throw InputError(path + ": PCD header field " + key + " is too large: " + token);
+  if (v > kMaxPoints) throw InputError(path + ": PCD header field " + key + " is too large: " + printable(token));
   return static_cast<std::size_t>(v);
 }
 
@@ -189,7 +194,7 @@ PcdHeader parsePcdHeader(const std::string& buf, std::size_t* data_start, const 
       *data_start = pos;
       break;
     } else {
-      throw InputError(path + ": not a PCD file (unexpected header line '" + line.substr(0, 40) + "')");
+      throw InputError(path + ": not a PCD file (unexpected header line '" + printable(line, 40) + "')");
     }
   }
   if (h.data.empty()) throw InputError(path + ": not a PCD file (no DATA line)");
@@ -208,7 +213,7 @@ PcdHeader parsePcdHeader(const std::string& buf, std::size_t* data_start, const 
     f.count = counts[i];
     if (f.count < 1 || f.count > 4096 || !(f.size == 1 || f.size == 2 || f.size == 4 || f.size == 8) ||
         !(f.type == 'F' || f.type == 'I' || f.type == 'U')) {
-      throw InputError(path + ": PCD field '" + f.name + "' has an invalid SIZE/TYPE/COUNT");
+      throw InputError(path + ": PCD field '" + printable(f.name) + "' has an invalid SIZE/TYPE/COUNT");
     }
     f.offset = offset;
     offset += static_cast<std::size_t>(f.size) * f.count;
@@ -269,7 +274,7 @@ Cloud parsePcd(const std::string& buf, const std::string& path, const InputLimit
         double v = std::strtod(t.c_str(), &end);
         if (end == t.c_str() || *end != '\0') {
           if (lower(t) == "nan") v = std::numeric_limits<double>::quiet_NaN();
-          else throw InputError(path + ": PCD ascii row " + std::to_string(row + 1) + " has a non-number '" + t + "'");
+          else throw InputError(path + ": PCD ascii row " + std::to_string(row + 1) + " has a non-number '" + printable(t) + "'");
         }
         xyz.push_back(v);
       }
@@ -317,7 +322,7 @@ Cloud parsePcd(const std::string& buf, const std::string& path, const InputLimit
       }
     }
   } else {
-    throw InputError(path + ": PCD DATA type '" + h.data + "' is not supported");
+    throw InputError(path + ": PCD DATA type '" + printable(h.data) + "' is not supported");
   }
   return finitePoints(xyz, path);
 }
@@ -374,7 +379,7 @@ Cloud readCsvStream(std::istream& in, const std::string& path, const InputLimits
       char* end = nullptr;
       double v = std::strtod(tok[c].c_str(), &end);
       if (end == tok[c].c_str() || *end != '\0') {
-        throw InputError(path + ": line " + std::to_string(line_no) + " has a non-number '" + tok[c] + "'");
+        throw InputError(path + ": line " + std::to_string(line_no) + " has a non-number '" + printable(tok[c]) + "'");
       }
       xyz.push_back(v);
     }

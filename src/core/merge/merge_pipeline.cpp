@@ -216,6 +216,17 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
                                  fmt(diag.kalman_scale_stddev, 2) + "; " + verdict.message);
 }
 
+std::optional<MergeEdge> poseGraphEdge(const MergeResult& result) {
+  const RegistrationReport& r = result.report;
+  if (r.status != Status::kOk || !r.transform || !r.keyframe_edge) return std::nullopt;
+  MergeEdge edge;
+  edge.target_from_source = *r.transform;
+  edge.covariance = result.diagnostics.covariance;
+  edge.source_keyframe = r.keyframe_edge->source_keyframe;
+  edge.target_keyframe = r.keyframe_edge->target_keyframe;
+  return edge;
+}
+
 MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const MergeRequest& request,
                       const MergeOptions& options) {
   MergePipeline pipeline(options);
