@@ -3,12 +3,14 @@
 
 #include <opencv2/imgproc.hpp>
 #include <ros/console.h>
+#include <ros/time.h>
 #include <sensor_msgs/image_encodings.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <map>
+#include <mutex>
 #include <sstream>
 
 #include "pcr_pro/io/plausibility.h"
@@ -150,6 +152,20 @@ sensor_msgs::CameraInfo cameraToMsg(const PinholeCamera& camera) {
   return msg;
 }
 
+namespace {
+// At most one warning per 10 s of wall time. ROS_WARN_THROTTLE reads ros::Time::now(), which
+// throws where the conversions run without a node (rosbag API tools and tests, the fuzzers).
+void warnThrottled(const std::string& text) {
+  static std::mutex mutex;
+  static double last = -1e300;
+  const double now = ros::WallTime::now().toSec();
+  std::lock_guard<std::mutex> lock(mutex);
+  if (now - last < 10.0) return;
+  last = now;
+  ROS_WARN("%s", text.c_str());
+}
+}  // namespace
+
 Sim3 sim3FromPose(const geometry_msgs::Pose& pose, double scale) {
   const auto& q = pose.orientation;
   const auto& p = pose.position;
@@ -158,7 +174,7 @@ Sim3 sim3FromPose(const geometry_msgs::Pose& pose, double scale) {
   const double n = quat.norm();
   if (!finite(n) || n < 1e-9) fail("pose.orientation", "must be a finite, non-zero quaternion");
   const std::string norm_warning = quaternionNormWarning(n, "pose.orientation");
-  if (!norm_warning.empty()) ROS_WARN_THROTTLE(10.0, "%s", norm_warning.c_str());
+  if (!norm_warning.empty()) warnThrottled(norm_warning);
   if (!finite(scale) || !(scale > 0.0)) fail("scale", "must be finite and > 0, got " + str(scale));
   checkScale(scale, "scale");
   return Sim3(scale, quat.normalized(), Eigen::Vector3d(p.x, p.y, p.z));

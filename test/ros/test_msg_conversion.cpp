@@ -486,6 +486,21 @@ TEST(NodeOptions, DefaultsAreValidAndBadValuesNameTheKey) {
   expectKey(bad, "~");
 }
 
+// A quaternion far from unit norm is used normalised with a warning, also where no node runs and
+// ros::Time is not initialised (rosbag API tools, these tests): the fuzzer found that the
+// throttled warning read ros::Time::now() and threw there.
+TEST(Poses, FarFromUnitQuaternionWarnsWithoutARosClock) {
+  ASSERT_FALSE(ros::Time::isValid());
+  geometry_msgs::Pose pose;
+  pose.orientation.w = 2.0;  // norm 2
+  pose.position.x = 1.0;
+  Sim3 s;
+  ASSERT_NO_THROW(s = sim3FromPose(pose, 1.5));
+  EXPECT_LT((s.rotation() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_DOUBLE_EQ(s.scale(), 1.5);
+  ASSERT_NO_THROW(sim3FromPose(pose, 1.5));  // and again, within the throttle period
+}
+
 }  // namespace
 }  // namespace ros_bridge
 }  // namespace pcr_pro

@@ -328,6 +328,8 @@ std::vector<BundleDefect> bundleDefects() {
   const std::string y = "bundle.yaml";
   const std::string img = "keyframes/1.png", dep = "keyframes/1_depth.png";
   const std::string& camera = b.camera;
+  const std::size_t cy_at = camera.find("cy: ");
+  const std::string cy_line = camera.substr(cy_at, camera.find('\n', cy_at) - cy_at);
   const std::string& q1 = b.q1;
   const std::string& p1 = b.p1;
   const std::string& kf_scale = b.scale1;
@@ -387,10 +389,11 @@ std::vector<BundleDefect> bundleDefects() {
       {"DuplicateId", "- id: 2", "- id: 1", nullptr, y, {"keyframes[1].id", "duplicate"}, ""},
       {"ZeroQuaternion", q1, "[0, 0, 0, 0]", nullptr, y, {"keyframes[0].pose.orientation", "zero quaternion"}, ""},
       // intrinsics no calibration gives (a unit mix-up): one pixel and one image size are the bounds
-      {"FocalBelowOnePixel", "fx: 518.0", "fx: 0.518", nullptr, y, {"camera.fx", "below one pixel"}, ""},
-      {"PrincipalPointFarOutside", "cy: 253.5", "cy: 2530.5", nullptr, y, {"camera.cy", "principal point far outside", "[-480, 960]"}, ""},
+      {"FocalBelowOnePixel", b.fx, "fx: 0.518", nullptr, y, {"camera.fx", "below one pixel"}, ""},
+      {"PrincipalPointFarOutside", cy_line, "cy: 2530.5", nullptr, y,
+       {"camera.cy", "principal point far outside", "[-" + b.height.substr(8) + ", " + std::to_string(2 * std::stoi(b.height.substr(8))) + "]"}, ""},
       // a non-UTF-8 byte and an escape sequence in a YAML value are quoted escaped
-      {"YamlValueBytesEscaped", "fy: 519.0", "fy: \"\\xff\\x1b[31m\"", nullptr, y, {"camera.fy", "\\x1b[31m"}, ""},
+      {"YamlValueBytesEscaped", b.fy, "fy: \"\\xff\\x1b[31m\"", nullptr, y, {"camera.fy", "\\x1b[31m"}, ""},
       {"QuaternionTooShort", q1, "[0, 0, 1]", nullptr, y, {"keyframes[0].pose.orientation", "4 numbers"}, ""},
       {"QuaternionInf", q1, "[0, 0, 0, .inf]", nullptr, y, {"keyframes[0].pose.orientation[3]", "finite"}, ""},
       {"PositionWord", p1, "[0.2, up, 0.8]", nullptr, y, {"keyframes[0].pose.position[1]", "number"}, ""},
@@ -561,9 +564,11 @@ TEST(QuaternionNorm, FarFromUnitIsAWarning) {
   EXPECT_NE(quaternionNormWarning(1.0 - 2 * kQuaternionNormTolerance, "q"), "");
   const fs::path copy = scratch() / "quaternion_norm";
   fs::remove_all(copy);
-  fs::copy(kAgentA, copy, fs::copy_options::recursive);
-  const std::string q1 = "[0.048973829433, 0.093757233154, -0.079169264539, 0.991233258529]";
-  const std::string q1_doubled = "[0.097947658866, 0.187514466308, -0.158338529078, 1.982466517058]";
+  fs::copy(base().dir, copy, fs::copy_options::recursive);
+  // The base bundle's first keyframe's orientation, and the same quaternion doubled.
+  const std::string q1 = base().q1;
+  const Eigen::Quaterniond q = loadBundle(base().dir.string()).keyframes[0].pose.quaternion();
+  const std::string q1_doubled = list({2 * q.x(), 2 * q.y(), 2 * q.z(), 2 * q.w()});
   std::string text = readText(copy / "bundle.yaml");
   ASSERT_NE(text.find(q1), std::string::npos);
   std::vector<std::string> warnings;
@@ -596,7 +601,7 @@ TEST(SymlinkLoop, IsReportedAsOne) {
   const std::string bundle = (dir / "bundle_a").string();
   expectBadInput(runTool(PCR_PRO_MERGE_BIN, "--source " + bundle + " --target " + kAgentA), bundle, {"symlink loop"});
   const fs::path copy = dir / "copy";
-  fs::copy(kAgentA, copy, fs::copy_options::recursive);
+  fs::copy(base().dir, copy, fs::copy_options::recursive);  // its first keyframe is id 1
   fs::remove(copy / "keyframes/1.png");
   fs::create_symlink(copy / "keyframes/1.png", copy / "keyframes/1.png");  // points at itself
   const std::string image = (copy / "keyframes/1.png").string();
