@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """The README's ROS commands, run as written against a live master (rostest), so that the docs
 cannot rot: every line of each README code block marked `<!-- readme-commands ... -->` runs from the
-repository root in a shell, in order (`source ...` and `roscore &` excepted: rostest provides the
-environment and the master); a line ending in `&` runs in the background (the node), every other
+repository root in a bash, in order, after sourcing the devel space's setup.bash as the README's
+`source build/devel/setup.bash` does (`roscore &` excepted: rostest provides the master); a line ending in `&` runs in the background (the node), every other
 line must exit 0 within a time limit, and what it prints is checked where the README says what it
 shows. The block must contain the commands a new user needs: starting the node with rosrun,
 playing the bag, the empty merge request, echoing the edge and /diagnostics, rosmsg show of our and
@@ -45,6 +45,23 @@ def environment():
     return env
 
 
+def devel_space():
+    """The devel space of the build under test (the first entry of CMAKE_PREFIX_PATH)."""
+    devel = os.environ.get('CMAKE_PREFIX_PATH', '').split(':')[0]
+    if not os.path.isfile(os.path.join(devel, 'setup.bash')):
+        raise RuntimeError('no devel space with a setup.bash in CMAKE_PREFIX_PATH: %r' % devel)
+    return devel
+
+
+def as_user(command):
+    """The command as a user runs it: in a bash that has sourced the devel space's setup.bash, as the
+    README's `source build/devel/setup.bash` line does (the environment rostest gets from catkin is
+    cached when the build is configured, before the devel space holds the Python messages, so it
+    lacks their PYTHONPATH on a fresh build), talking to the test's master."""
+    return 'source %s/setup.bash && export ROS_MASTER_URI=%s && %s' % (
+        devel_space(), os.environ['ROS_MASTER_URI'], command)
+
+
 class ReadmeCommands(unittest.TestCase):
     def test_the_readme_commands_work_as_written(self):
         commands = readme_commands()
@@ -78,11 +95,13 @@ class ReadmeCommands(unittest.TestCase):
         try:
             for command in commands:
                 if command.endswith('&'):
-                    background.append(subprocess.Popen(command[:-1], shell=True, cwd=ROOT, env=environment(),
+                    background.append(subprocess.Popen(as_user(command[:-1]), shell=True, cwd=ROOT, env=environment(),
+                                                       executable='/bin/bash',
                                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                                        start_new_session=True))
                     continue
-                run = subprocess.run(command, shell=True, cwd=ROOT, env=environment(), capture_output=True,
+                run = subprocess.run(as_user(command), shell=True, cwd=ROOT, env=environment(), capture_output=True,
+                                     executable='/bin/bash',
                                      text=True, timeout=TIMEOUT_S)
                 self.assertEqual(run.returncode, 0, '`%s` failed (exit %d):\n%s\n%s'
                                  % (command, run.returncode, run.stdout[-2000:], run.stderr[-2000:]))
