@@ -119,7 +119,7 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
       // keyframes' pose errors, the map's distortion), so its covariance is only a lower bound and
       // a wide disagreement says that, not that either estimate is wrong: the covariance is made
       // to cover the refinement instead (on the slambook2 frames one pair claimed 0.035 deg in
-      // rotation and lay 0.5 deg from the refinement).
+      // rotation and lay 0.6 deg from the refinement).
       if (keyframes.used_pairs >= 2 && v.refinement_chi2 > kRefuseFactor * options_.refinement_agreement_chi2) {
         v.status = Status::kIcpNotConverged;
         v.message = "refused: the refinement and the keyframe matches disagree far beyond their uncertainty (" +
