@@ -380,6 +380,7 @@ double recall(const std::vector<int>& found, const std::vector<std::vector<cv::D
 }
 
 TEST(DescriptorIndex, FindsTheExactNeighbourAsOftenAsFlannAtTheSameBudget) {
+  PCR_PRO_REQUIRE_DATA(kColorDir);  // real SIFT descriptors
   const RealDescriptors d = realDescriptors();
   ASSERT_GT(d.query.rows, 500);
   cv::BFMatcher exact_matcher(cv::NORM_L2);
@@ -417,6 +418,7 @@ TEST(DescriptorIndex, FindsTheExactNeighbourAsOftenAsFlannAtTheSameBudget) {
 }
 
 TEST(DescriptorIndex, TheSeedAloneDecidesTheAnswers) {
+  PCR_PRO_REQUIRE_DATA(kColorDir);  // real SIFT descriptors
   const RealDescriptors d = realDescriptors();
   // A small budget, so that the answers depend on the trees.
   constexpr int kChecks = 8;
@@ -461,6 +463,7 @@ TEST(DescriptorIndex, DegenerateInput) {
 }
 
 TEST(FeatureMatching, MatchesAndVotesAreRepeatableWhateverElseDrawsRandomNumbers) {
+  PCR_PRO_REQUIRE_DATA(kColorDir);  // real SIFT descriptors
   const FeatureMatchingOptions o;
   const KeyframeFeatures f2 = extractFeatures(loadGray("2.png"), o), f3 = extractFeatures(loadGray("3.png"), o);
   const KeyframeFeatures f4 = extractFeatures(loadGray("4.png"), o);
