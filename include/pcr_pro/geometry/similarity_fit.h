@@ -98,6 +98,9 @@ Eigen::Matrix<double, 7, 1> similarityDifference(const Sim3& a, const Sim3& b);
  */
 Matrix7d similarityAdjoint(const Sim3& g);
 
+/// @return RMS distance [target units] between where a and b put the matches' source points (0 without matches)
+double rmsMoveOfMatches(const std::vector<PointMatch3>& matches, const Sim3& a, const Sim3& b);
+
 /// @return exp(δ) · s (the update of the file comment's convention)
 Sim3 applyDelta(const Eigen::Matrix<double, 7, 1>& delta, const Sim3& s);
 

@@ -122,6 +122,12 @@ Matrix7d similarityAdjoint(const Sim3& g) {
   return ad;
 }
 
+double rmsMoveOfMatches(const std::vector<PointMatch3>& matches, const Sim3& a, const Sim3& b) {
+  double sum = 0.0;
+  for (const PointMatch3& m : matches) sum += (a.apply(m.source) - b.apply(m.source)).squaredNorm();
+  return matches.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(matches.size()));
+}
+
 Sim3 applyDelta(const Eigen::Matrix<double, 7, 1>& delta, const Sim3& s) {
   const Sim3 step(std::exp(delta(6)), expSO3(delta.segment<3>(3)), delta.head<3>());
   return step * s;

@@ -27,14 +27,6 @@ constexpr double kRefuseFactor = 4.0;
 // a wrong one loses a large part of it.
 constexpr double kCloudPreference = 1.2;
 
-// RMS distance [target units] between where two similarities put the pooled keyframe matches'
-// source points.
-double moveOfMatches(const std::vector<PointMatch3>& matches, const Sim3& a, const Sim3& b) {
-  double sum = 0.0;
-  for (const PointMatch3& m : matches) sum += (a.apply(m.source) - b.apply(m.source)).squaredNorm();
-  return matches.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(matches.size()));
-}
-
 // How far the refinement moves the keyframe matches from the keyframe estimate, and the farthest
 // any used pair's own estimate moves them. The refinement and the pooled keyframe estimate both
 // describe the overlap as a whole; a refinement beyond every pair's own similarity is not
@@ -44,9 +36,9 @@ double moveOfMatches(const std::vector<PointMatch3>& matches, const Sim3& a, con
 std::pair<double, double> pairSpread(const KeyframeEstimate& keyframes, const Sim3& refined) {
   double spread = 0.0;
   for (const PairEvidence& e : keyframes.pairs) {
-    if (e.used) spread = std::max(spread, moveOfMatches(keyframes.matches, e.estimate, keyframes.estimate));
+    if (e.used) spread = std::max(spread, rmsMoveOfMatches(keyframes.matches, e.estimate, keyframes.estimate));
   }
-  return {moveOfMatches(keyframes.matches, refined, keyframes.estimate), spread};
+  return {rmsMoveOfMatches(keyframes.matches, refined, keyframes.estimate), spread};
 }
 
 }  // namespace

@@ -414,10 +414,9 @@ void selectPooledMatches(KeyframeEstimate* out) {
     e.note = "used: " + std::to_string(per_pair[i]) + " of its " + std::to_string(e.matches.size()) +
              " matches are pooled inliers";
     if (2 * per_pair[i] < most) continue;
-    double sum = 0.0;
-    for (const PointMatch3& m : out->matches) sum += (e.estimate.apply(m.source) - out->estimate.apply(m.source)).squaredNorm();
-    if (sum < best) {
-      best = sum;
+    const double move = rmsMoveOfMatches(out->matches, e.estimate, out->estimate);
+    if (move < best) {
+      best = move;
       out->anchor = static_cast<int>(i);
     }
   }
