@@ -1,7 +1,7 @@
 // make bench, the suite: one section per table of docs/BENCHMARKS.md (section_*.cpp). Writes
 // Markdown fragments and CSV files into an output directory; every number comes from this run.
 //
-// Usage: pcr_pro_bench_suite OUTPUT_DIR [--quick] [--only SECTION[,SECTION...]]
+// Usage: pcr_pro_bench_suite OUTPUT_DIR [--quick] [--ours-only] [--only SECTION[,SECTION...]]
 //   SECTION: real, simulated, timing, consistency, sweep, car
 //   pcr_pro_bench_suite --memory N merge|idle   (internal: the timing section's memory probe)
 #include <omp.h>
@@ -49,7 +49,7 @@ bool wanted(const std::string& only, const std::string& name) {
 }
 
 int usage() {
-  std::fprintf(stderr, "usage: pcr_pro_bench_suite OUTPUT_DIR [--quick] [--only SECTION[,SECTION...]]\n  sections:");
+  std::fprintf(stderr, "usage: pcr_pro_bench_suite OUTPUT_DIR [--quick] [--ours-only] [--only SECTION[,SECTION...]]\n  sections:");
   for (const Section& s : sections()) std::fprintf(stderr, " %s", s.name);
   std::fprintf(stderr, "\n");
   return 2;
@@ -69,6 +69,8 @@ int main(int argc, char** argv) {
       const std::string a = argv[i];
       if (a == "--quick") {
         config.quick = true;
+      } else if (a == "--ours-only") {
+        config.ours_only = true;
       } else if (a == "--only" && i + 1 < argc) {
         only = argv[++i];
       } else {

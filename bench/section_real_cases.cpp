@@ -134,6 +134,7 @@ void sectionRealCases(Output& out, const SuiteConfig& config, std::FILE* headlin
   std::vector<CaseResult> results;
   std::map<std::string, std::vector<PeerRun>> peer_cache;
   CaseRunOptions options;
+  options.peers = options.pcl = !config.ours_only;
   for (const RealCase& c : cases) {
     CaseInput in;
     in.name = c.path;

@@ -172,6 +172,7 @@ void sectionSimulated(Output& out, const SuiteConfig& config, std::FILE* headlin
   std::map<std::string, std::vector<PeerRun>> peer_cache;
   const double t0 = nowMs();
   CaseRunOptions options;
+  options.peers = options.pcl = !config.ours_only;
   options.pcl = false;  // the PCL refiners are compared on the real cases only (time)
   // Open3D: every setting on the first seed of each cell, then the best of those on the others.
   std::map<std::string, int> best;

@@ -38,6 +38,9 @@ void writeRows(std::FILE* f, const std::vector<Row>& rows);
 /// What the run does: full, or --quick (a reduced version of every section).
 struct SuiteConfig {
   bool quick = false;
+  /// `--ours-only`: the real and simulated sections run no peer (a quick look at our own numbers
+  /// while developing; BENCHMARKS.md is always made with the peers).
+  bool ours_only = false;
   std::string self;  ///< this executable (for the memory probes)
 };
 
