@@ -5,21 +5,12 @@
 #include <pcl/registration/ndt.h>
 
 #include "bench_common.h"
+#include "pcr_pro/pcl.h"
 #include "peers.h"
 
 namespace pcr_pro {
 namespace bench {
 namespace {
-
-pcl::PointCloud<pcl::PointXYZ>::Ptr toPcl(const Cloud& c) {
-  pcl::PointCloud<pcl::PointXYZ>::Ptr out(new pcl::PointCloud<pcl::PointXYZ>);
-  out->resize(static_cast<std::size_t>(c.cols()));
-  for (Eigen::Index i = 0; i < c.cols(); ++i) {
-    (*out)[static_cast<std::size_t>(i)] =
-        pcl::PointXYZ(static_cast<float>(c(0, i)), static_cast<float>(c(1, i)), static_cast<float>(c(2, i)));
-  }
-  return out;
-}
 
 // Runs a rigid PCL registration of `start`'s scale applied to the source, from start's rigid
 // part; the result keeps start's scale.
