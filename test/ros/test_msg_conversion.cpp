@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <limits>
 
 #include <pcl_conversions/pcl_conversions.h>
@@ -570,30 +571,22 @@ TEST(NodeOptions, DefaultsAreValidAndBadValuesNameTheKey) {
       EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
     }
   };
-  NodeOptions bad = o;
-  bad.agents.pop_back();
-  expectKey(bad, "~agents");
-  bad = o;
-  bad.agents[1].name = "/agent_b";
-  expectKey(bad, "~agents");
-  bad = o;
-  bad.agents[1].name = "agent_a";
-  expectKey(bad, "~agents");
-  bad = o;
-  bad.agents[0].frame_id = "/map";
-  expectKey(bad, "~agent_a/frame_id");
-  bad = o;
-  bad.agents[1].frame_id = "agent_a/map";
-  expectKey(bad, "~agent_b/frame_id");
-  bad = o;
-  bad.queue_size = 0;
-  expectKey(bad, "~queue_size");
-  bad = o;
-  bad.lsd.min_near_support = 12;
-  expectKey(bad, "~lsd.min_near_support");
-  bad = o;
-  bad.merge.matching.ratio_test = 2.0;
-  expectKey(bad, "~");
+  // Each change of the defaults and the key its error must name.
+  const std::vector<std::pair<std::function<void(NodeOptions&)>, std::string>> cases = {
+      {[](NodeOptions& b) { b.agents.pop_back(); }, "~agents"},
+      {[](NodeOptions& b) { b.agents[1].name = "/agent_b"; }, "~agents"},
+      {[](NodeOptions& b) { b.agents[1].name = "agent_a"; }, "~agents"},
+      {[](NodeOptions& b) { b.agents[0].frame_id = "/map"; }, "~agent_a/frame_id"},
+      {[](NodeOptions& b) { b.agents[1].frame_id = "agent_a/map"; }, "~agent_b/frame_id"},
+      {[](NodeOptions& b) { b.queue_size = 0; }, "~queue_size"},
+      {[](NodeOptions& b) { b.lsd.min_near_support = 12; }, "~lsd.min_near_support"},
+      {[](NodeOptions& b) { b.merge.matching.ratio_test = 2.0; }, "~"},
+  };
+  for (const auto& [change, key] : cases) {
+    NodeOptions bad = o;
+    change(bad);
+    expectKey(bad, key);
+  }
 }
 
 // A quaternion far from unit norm is used normalised with a warning, also where no node runs and
