@@ -19,6 +19,7 @@
 #include "pcr_pro/registration/icp.h"
 #include "pcr_pro/geometry/kdtree.h"
 #include "pcr_pro/geometry/normals.h"
+#include "pcr_pro/pcl.h"
 #include "pcr_pro/registration/scale_detection.h"
 
 using namespace pcr_pro;
@@ -39,16 +40,6 @@ double medianMs(int repeats, const std::function<void()>& f) {
   }
   std::sort(t.begin(), t.end());
   return t[t.size() / 2];
-}
-
-pcl::PointCloud<pcl::PointXYZ>::Ptr toPcl(const Cloud& c) {
-  pcl::PointCloud<pcl::PointXYZ>::Ptr out(new pcl::PointCloud<pcl::PointXYZ>);
-  out->resize(static_cast<std::size_t>(c.cols()));
-  for (Eigen::Index i = 0; i < c.cols(); ++i) {
-    (*out)[static_cast<std::size_t>(i)] =
-        pcl::PointXYZ(static_cast<float>(c(0, i)), static_cast<float>(c(1, i)), static_cast<float>(c(2, i)));
-  }
-  return out;
 }
 
 struct Accuracy {

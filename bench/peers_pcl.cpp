@@ -5,21 +5,12 @@
 #include <pcl/registration/ndt.h>
 
 #include "bench_common.h"
+#include "pcr_pro/pcl.h"
 #include "peers.h"
 
 namespace pcr_pro {
 namespace bench {
 namespace {
-
-pcl::PointCloud<pcl::PointXYZ>::Ptr toPcl(const Cloud& c) {
-  pcl::PointCloud<pcl::PointXYZ>::Ptr out(new pcl::PointCloud<pcl::PointXYZ>);
-  out->resize(static_cast<std::size_t>(c.cols()));
-  for (Eigen::Index i = 0; i < c.cols(); ++i) {
-    (*out)[static_cast<std::size_t>(i)] =
-        pcl::PointXYZ(static_cast<float>(c(0, i)), static_cast<float>(c(1, i)), static_cast<float>(c(2, i)));
-  }
-  return out;
-}
 
 // Runs a rigid PCL registration of `start`'s scale applied to the source, from start's rigid
 // part; the result keeps start's scale.
@@ -62,19 +53,20 @@ PeerResult runPcl(int index, const Cloud& source, const Cloud& target, const Pee
   // (the keyframe estimate is within a few % of the extent) and narrower than the parts of a
   // partially overlapping map that have no counterpart.
   const double max_corr = 0.03 * p.target_size;
+  // ICP and GICP take the same three settings.
+  const auto icpLike = [&](auto& reg) {
+    reg.setMaxCorrespondenceDistance(max_corr);
+    reg.setMaximumIterations(100);
+    reg.setTransformationEpsilon(1e-10);
+    return runReg(reg, source, target, start);
+  };
   if (index == 0) {
     pcl::IterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ> icp;
-    icp.setMaxCorrespondenceDistance(max_corr);
-    icp.setMaximumIterations(100);
-    icp.setTransformationEpsilon(1e-10);
-    return runReg(icp, source, target, start);
+    return icpLike(icp);
   }
   if (index == 1) {
     pcl::GeneralizedIterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ> gicp;
-    gicp.setMaxCorrespondenceDistance(max_corr);
-    gicp.setMaximumIterations(100);
-    gicp.setTransformationEpsilon(1e-10);
-    return runReg(gicp, source, target, start);
+    return icpLike(gicp);
   }
   pcl::NormalDistributionsTransform<pcl::PointXYZ, pcl::PointXYZ> ndt;
   ndt.setResolution(static_cast<float>(p.target_size / 20.0));

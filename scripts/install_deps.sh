@@ -30,6 +30,9 @@ packages=(
   ros-std-msgs ros-sensor-msgs ros-geometry-msgs ros-diagnostic-msgs
   libtf2-ros-dev libdiagnostic-updater-dev libnodelet-dev libnodeletlib-tools pluginlib-dev
   librosbag-dev python3-rosbag librostest-dev python3-rostest python3-roslaunch rosout rosbash
+  # images through cv_bridge; pcr_pro/pcl.h, the published clouds (pcl_conversions) and the PCD
+  # differential test (pcl::io)
+  libcv-bridge-dev libpcl-dev libpcl-conversions-dev libpcl-msgs-dev
   # the README's command-line tools (rosrun, rosservice call, rostopic echo, rosmsg show, rosnode) and
   # the Python message classes they load: pcr_pro's messages need std/geometry/sensor_msgs, the
   # node's diagnostics diagnostic_msgs (test/ros/readme_commands.py runs them all)
@@ -38,7 +41,7 @@ packages=(
 )
 case "$profile" in
   build) ;;
-  bench) packages+=(libpcl-dev libopen3d-dev python3 python3-matplotlib python3-numpy) ;;
+  bench) packages+=(libopen3d-dev python3 python3-matplotlib python3-numpy) ;;
   # make fuzz: the default list has clang; llvm-14 adds llvm-symbolizer for readable reports
   fuzz) packages+=(llvm-14) ;;
   # make test-sanitize: g++'s ASan/UBSan runtimes come with g++; llvm-14 for symbolised reports

@@ -5,10 +5,15 @@
 
 #include <cmath>
 #include <cstring>
+#include <functional>
+#include <limits>
+
+#include <pcl_conversions/pcl_conversions.h>
 
 #include "common/sim_worlds.h"
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/agent_store.h"
+#include "pcr_pro/pcl.h"
 #include "pcr_pro/ros/msg_conversion.h"
 #include "pcr_pro/ros/node_options.h"
 
@@ -361,6 +366,112 @@ TEST(Conversions, CloudRoundTripAndValidation) {
   EXPECT_EQ(cloudFromMsg(bad).cols(), agent.cloud.cols() - 1);
 }
 
+// The error text of a conversion, or "accepted".
+template <typename F>
+std::string errorOf(F&& f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "accepted";
+}
+
+TEST(Conversions, DuplicatedOrMultiCountCoordinateFieldsAreRejected) {
+  const Cloud c = generatedAgent().cloud.leftCols(50);
+  const sensor_msgs::PointCloud2 msg = cloudToMsg(c, "agent_b/map", ros::Time(1.0));
+  // A second "x" after the first (here at y's offset): which one holds would be undefined.
+  auto bad = msg;
+  sensor_msgs::PointField second_x = bad.fields[0];
+  second_x.offset = 4;
+  bad.fields.push_back(second_x);
+  EXPECT_EQ(errorOf([&] { cloudFromMsg(bad); }),
+            "cloud: field x (fields[3]) is a duplicate: 'x' appears twice");
+  // The duplicate first: still refused, naming the later one.
+  bad = msg;
+  bad.fields.insert(bad.fields.begin(), msg.fields[2]);
+  EXPECT_EQ(errorOf([&] { cloudFromMsg(bad); }),
+            "cloud: field z (fields[3]) is a duplicate: 'z' appears twice");
+  for (std::uint32_t count : {0u, 3u}) {
+    bad = msg;
+    bad.fields[1].count = count;
+    EXPECT_EQ(errorOf([&] { cloudFromMsg(bad); }),
+              "cloud: field y (fields[1]) has count " + std::to_string(count) + ": a coordinate must have count 1");
+  }
+  // Other fields may repeat or have any count: they are not read.
+  auto extra = msg;
+  sensor_msgs::PointField rgb;
+  rgb.name = "rgb";
+  rgb.offset = 0;
+  rgb.datatype = sensor_msgs::PointField::FLOAT32;
+  rgb.count = 4;
+  extra.fields.push_back(rgb);
+  extra.fields.push_back(rgb);
+  EXPECT_EQ(cloudFromMsg(extra).cols(), c.cols());
+}
+
+TEST(Conversions, PublishedCloudRoundTripsThroughOursAndPcl) {
+  const Cloud c = generatedAgent().cloud;
+  const ros::Time stamp(1234.000000789);  // below PCL's microsecond stamps: must be kept exactly
+  const sensor_msgs::PointCloud2 msg = cloudToPclMsg(c, "agent_a/map", stamp);
+  EXPECT_EQ(msg.header.frame_id, "agent_a/map");
+  EXPECT_EQ(msg.header.stamp, stamp);
+  EXPECT_EQ(msg.width * msg.height, static_cast<std::uint32_t>(c.cols()));
+  EXPECT_EQ(msg.point_step, sizeof(pcl::PointXYZ));
+  // float keeps 24 bits: each coordinate within eps * |value| of the double.
+  const Eigen::ArrayXXd bound = std::numeric_limits<float>::epsilon() * c.array().abs();
+  const Cloud ours = cloudFromMsg(msg);
+  ASSERT_EQ(ours.cols(), c.cols());
+  EXPECT_TRUE(((ours - c).array().abs() <= bound).all());
+  pcl::PointCloud<pcl::PointXYZ> theirs;
+  pcl::fromROSMsg(msg, theirs);
+  ASSERT_EQ(fromPcl(theirs).cols(), c.cols());
+  EXPECT_EQ(fromPcl(theirs), ours);  // the same floats
+  // The bags' writer and this one carry the same points.
+  EXPECT_EQ(cloudFromMsg(cloudToMsg(c, "agent_a/map", stamp)), ours);
+}
+
+TEST(Conversions, ImageSizeGuardIs64Bit) {
+  // step * height = 65536 * 65537 = 2^32 + 65536 wraps to 65536 in 32 bits, where cv_bridge makes
+  // its check: 65536 bytes would pass it. The guard in front of cv_bridge computes it in 64 bits.
+  sensor_msgs::Image msg;
+  msg.encoding = "mono8";
+  msg.width = 10;
+  msg.height = 65537;
+  msg.step = 65536;
+  msg.data.resize(static_cast<std::uint32_t>(msg.step * msg.height));  // the 32-bit product: 65536
+  ASSERT_EQ(msg.data.size(), 65536u);
+  EXPECT_EQ(errorOf([&] { greyImageFromMsg(msg); }), "image: data size 65536 != step * height = 4295032832");
+}
+
+TEST(Conversions, ImagesThroughCvBridge) {
+  // A padded row (step > width) and 16-bit depth under both of its names.
+  sensor_msgs::Image grey;
+  grey.encoding = "mono8";
+  grey.width = 3, grey.height = 2, grey.step = 5;
+  grey.data = {1, 2, 3, 0, 0, 4, 5, 6, 0, 0};
+  const cv::Mat g = greyImageFromMsg(grey);
+  ASSERT_EQ(g.size(), cv::Size(3, 2));
+  EXPECT_EQ(g.at<std::uint8_t>(1, 2), 6);
+  cv::Mat metres(2, 3, CV_32FC1, cv::Scalar(1.25f));
+  metres.at<float>(0, 1) = NAN;
+  metres.at<float>(1, 0) = -2.0f;
+  metres.at<float>(1, 1) = INFINITY;
+  const cv::Mat d = depthFromMsg(depthToMsg(metres));
+  EXPECT_EQ(d.at<float>(0, 0), 1.25f);
+  EXPECT_EQ(d.at<float>(0, 1), 0.0f);  // unknown depths are 0
+  EXPECT_EQ(d.at<float>(1, 0), 0.0f);
+  EXPECT_EQ(d.at<float>(1, 1), 0.0f);
+  sensor_msgs::Image mm = depthToMsgMillimetres(metres);
+  EXPECT_EQ(mm.encoding, "16UC1");
+  for (const char* encoding : {"16UC1", "mono16"}) {
+    mm.encoding = encoding;
+    const cv::Mat back = depthFromMsg(mm);
+    EXPECT_EQ(back.at<float>(0, 0), 1.25f) << encoding;
+    EXPECT_EQ(back.at<float>(0, 1), 0.0f) << encoding;
+  }
+}
+
 TEST(Conversions, EdgeRoundTrip) {
   RegistrationReport r;
   r.status = Status::kOk;
@@ -460,30 +571,22 @@ TEST(NodeOptions, DefaultsAreValidAndBadValuesNameTheKey) {
       EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
     }
   };
-  NodeOptions bad = o;
-  bad.agents.pop_back();
-  expectKey(bad, "~agents");
-  bad = o;
-  bad.agents[1].name = "/agent_b";
-  expectKey(bad, "~agents");
-  bad = o;
-  bad.agents[1].name = "agent_a";
-  expectKey(bad, "~agents");
-  bad = o;
-  bad.agents[0].frame_id = "/map";
-  expectKey(bad, "~agent_a/frame_id");
-  bad = o;
-  bad.agents[1].frame_id = "agent_a/map";
-  expectKey(bad, "~agent_b/frame_id");
-  bad = o;
-  bad.queue_size = 0;
-  expectKey(bad, "~queue_size");
-  bad = o;
-  bad.lsd.min_near_support = 12;
-  expectKey(bad, "~lsd.min_near_support");
-  bad = o;
-  bad.merge.matching.ratio_test = 2.0;
-  expectKey(bad, "~");
+  // Each change of the defaults and the key its error must name.
+  const std::vector<std::pair<std::function<void(NodeOptions&)>, std::string>> cases = {
+      {[](NodeOptions& b) { b.agents.pop_back(); }, "~agents"},
+      {[](NodeOptions& b) { b.agents[1].name = "/agent_b"; }, "~agents"},
+      {[](NodeOptions& b) { b.agents[1].name = "agent_a"; }, "~agents"},
+      {[](NodeOptions& b) { b.agents[0].frame_id = "/map"; }, "~agent_a/frame_id"},
+      {[](NodeOptions& b) { b.agents[1].frame_id = "agent_a/map"; }, "~agent_b/frame_id"},
+      {[](NodeOptions& b) { b.queue_size = 0; }, "~queue_size"},
+      {[](NodeOptions& b) { b.lsd.min_near_support = 12; }, "~lsd.min_near_support"},
+      {[](NodeOptions& b) { b.merge.matching.ratio_test = 2.0; }, "~"},
+  };
+  for (const auto& [change, key] : cases) {
+    NodeOptions bad = o;
+    change(bad);
+    expectKey(bad, key);
+  }
 }
 
 // A quaternion far from unit norm is used normalised with a warning, also where no node runs and

@@ -163,6 +163,9 @@ TEST(CloudIo, ErrorsNameTheFile) {
       {"badsize.pcd", "FIELDS x y z\nSIZE 4 3 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nPOINTS 1\nDATA binary\n123456789012"},
       {"mismatch.pcd", "FIELDS x y z\nSIZE 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nPOINTS 1\nDATA ascii\n1 2 3\n"},
       {"nodata.pcd", "FIELDS x y z\nSIZE 4 4 4\n"},
+      // which x / which count holds would be undefined (test/pcl/test_pcd_differential.cpp)
+      {"twox.pcd", "FIELDS x y z x\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 1\nPOINTS 1\nDATA ascii\n1 2 3 4\n"},
+      {"points.pcd", "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nPOINTS 1\nDATA ascii\n1 2 3\n"},
       {"lzf.pcd", "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nPOINTS 1\nDATA weird\n"},
       {"text.csv", "1,2\n"},
       {"words.csv", "1,2,3\na,b,c\n"},

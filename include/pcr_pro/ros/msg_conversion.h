@@ -1,8 +1,11 @@
 /**
  * @file msg_conversion.h
- * @brief Every conversion between ROS messages and pcr_pro core types, in one place (tested by
+ * @brief Every conversion between ROS messages and pcr_pro core types (tested by
  * test/ros/test_msg_conversion.cpp). Decoding validates the message and throws
  * pcr_pro::InputError naming the field at fault; the node turns that into a throttled warning.
+ * Sources by kind: src/ros/msg_image.cpp (images through cv_bridge, keyframes), msg_cloud.cpp
+ * (PointCloud2; pcl_conversions for the published clouds), msg_pose.cpp (camera, poses, the
+ * edge), msg_lsd.cpp (LSD-SLAM).
  */
 #pragma once
 
@@ -90,14 +93,22 @@ pcr_pro::Keyframe keyframeToMsg(const MapKeyframe& keyframe, const PinholeCamera
 
 /**
  * @brief The x, y, z fields (FLOAT32 or FLOAT64) of a point cloud; points with a non-finite
- * coordinate are dropped.
+ * coordinate are dropped. Stricter than pcl::fromROSMsg, which takes neither FLOAT64 nor a
+ * malformed layout and keeps NaN points.
  * @throw InputError when width * height * point_step != data.size() (computed without overflow), row_step != width *
- *   point_step, a field x / y / z is missing, of another type, or outside point_step, or the
- *   data is big-endian
+ *   point_step, a field x / y / z is missing, duplicated, of count != 1, of another type, or
+ *   outside point_step, or the data is big-endian
  */
 Cloud cloudFromMsg(const sensor_msgs::PointCloud2& msg);
-/// @return a dense, unorganised FLOAT32 x y z cloud
+/// @return a dense, unorganised FLOAT32 x y z cloud, 12 bytes a point (the bags' clouds)
 sensor_msgs::PointCloud2 cloudToMsg(const Cloud& cloud, const std::string& frame_id, const ros::Time& stamp);
+/**
+ * @brief The cloud as PCL publishes it: pcl::toROSMsg of a pcl::PointCloud<pcl::PointXYZ> (x y z
+ * FLOAT32, point_step 16), which pcl::fromROSMsg<pcl::PointXYZ> reads with one copy; the node's
+ * fused and aligned clouds.
+ * @throw InputError when a point is not finite or does not fit a float (toPcl())
+ */
+sensor_msgs::PointCloud2 cloudToPclMsg(const Cloud& cloud, const std::string& frame_id, const ros::Time& stamp);
 
 // --- merge result -----------------------------------------------------------------------------
 

@@ -221,6 +221,12 @@ PcdHeader parsePcdHeader(const std::string& buf, std::size_t* data_start, const 
   h.point_step = offset;
   if (!h.have_points) h.points = h.width * h.height;
   if (h.points > kMaxPoints) throw InputError(path + ": PCD POINTS too large");
+  // WIDTH and HEIGHT are each at most kMaxPoints (2e8): their product fits 64 bits. A header whose
+  // POINTS disagrees with them is inconsistent (which count holds is undefined; PCL refuses it too).
+  if (h.have_points && h.width > 0 && h.points != h.width * h.height) {
+    throw InputError(path + ": PCD header POINTS " + std::to_string(h.points) + " != WIDTH x HEIGHT = " +
+                     std::to_string(h.width) + " x " + std::to_string(h.height));
+  }
   return h;
 }
 
@@ -233,14 +239,21 @@ Cloud parsePcd(const std::string& buf, const std::string& path, const InputLimit
   if (h.points > static_cast<std::size_t>(std::max<std::int64_t>(limits.max_cloud_points, 0))) {
     throw InputError(tooManyPoints(path, h.points, limits) + " (PCD header POINTS/WIDTH x HEIGHT)");
   }
-  int ix = -1, iy = -1, iz = -1;
+  int idx[3] = {-1, -1, -1};
+  const char* const names[3] = {"x", "y", "z"};
   for (std::size_t i = 0; i < h.fields.size(); ++i) {
-    if (h.fields[i].name == "x") ix = static_cast<int>(i);
-    if (h.fields[i].name == "y") iy = static_cast<int>(i);
-    if (h.fields[i].name == "z") iz = static_cast<int>(i);
+    for (int k = 0; k < 3; ++k) {
+      if (h.fields[i].name != names[k]) continue;
+      // Two fields of one name: which one holds is undefined (PCL reads the first), so the file
+      // is refused rather than read either way.
+      if (idx[k] >= 0) {
+        throw InputError(path + ": PCD field '" + names[k] + "' appears twice in FIELDS (fields " +
+                         std::to_string(idx[k] + 1) + " and " + std::to_string(i + 1) + ")");
+      }
+      idx[k] = static_cast<int>(i);
+    }
   }
-  if (ix < 0 || iy < 0 || iz < 0) throw InputError(path + ": PCD has no x y z fields");
-  const int idx[3] = {ix, iy, iz};
+  if (idx[0] < 0 || idx[1] < 0 || idx[2] < 0) throw InputError(path + ": PCD has no x y z fields");
   std::vector<double> xyz;
   // Never reserve for more points than the data bytes can hold (a lying header costs nothing).
   const std::size_t data_bytes = buf.size() - data_start;
