@@ -569,11 +569,17 @@ void MergeNode::publishMerge(const MergeJob& job, const Snapshot& source, const 
   const Sim3& s = *report.transform;
   Cloud fused(3, target_map.cloud.cols() + source_map.cloud.cols());
   fused << target_map.cloud, s.apply(source_map.cloud);
-  fused_pub_.publish(cloudToPclMsg(fused, names.target_frame, stamp));
   // The source map in target units, in its own scaled frame (scaledFrame()): the rigid tf from the
   // target map puts it onto the target, and no frame claims coordinates it does not use.
   const std::string scaled = scaledFrame(names.source_frame);
-  aligned_pub_.publish(cloudToPclMsg(source_map.cloud * s.scale(), scaled, stamp));
+  try {
+    fused_pub_.publish(cloudToPclMsg(fused, names.target_frame, stamp));
+    aligned_pub_.publish(cloudToPclMsg(source_map.cloud * s.scale(), scaled, stamp));
+  } catch (const InputError& e) {
+    // Coordinates beyond float range (a FLOAT64 map far from its origin, scaled up): the edge and
+    // tf still go out; the clouds cannot be carried by a FLOAT32 PointCloud2.
+    ROS_ERROR("merged %s into %s but cannot publish the clouds: %s", job.source.c_str(), job.target.c_str(), e.what());
+  }
   if (options_.publish_tf) static_tf_.sendTransform(rigidTransformToMsg(s, names.target_frame, scaled, stamp));
   recordHistory(job, *edge, message);
   ROS_INFO("merged %s into %s (%s): scale %.5g +- %.2g, t [%.4g %.4g %.4g], keyframes %ld -> %ld, fitness %.4g, %d "
