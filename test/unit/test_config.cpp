@@ -136,16 +136,14 @@ TEST(Config, BinderErrorsGiveTheLine) {
 }
 
 TEST(Config, ScaleDetectionHasItsOwnValidate) {
-  ScaleDetectionOptions o;
-  EXPECT_NO_THROW(validate(o));
-  o.trim_fraction = 0.5;
-  EXPECT_THROW(validate(o), InputError);
-  o = ScaleDetectionOptions();
-  o.ratio_threshold = 1.0;
-  EXPECT_THROW(validate(o), InputError);
-  RegistrationOptions r;
-  r.scale_detection = o;
-  EXPECT_THROW(validate(r), InputError) << "the registration's validate() runs it";
+  EXPECT_NO_THROW(validate(ScaleDetectionOptions()));
+  // trim_fraction beyond 0.45, ratio_threshold not above 1
+  for (const ScaleDetectionOptions& bad : {ScaleDetectionOptions{0.5, 1.2}, ScaleDetectionOptions{0.05, 1.0}}) {
+    EXPECT_THROW(validate(bad), InputError);
+    RegistrationOptions r;
+    r.scale_detection = bad;
+    EXPECT_THROW(validate(r), InputError) << "the registration's validate() runs it";
+  }
 }
 
 TEST(Config, FilterChainIsReadInOrder) {
