@@ -6,15 +6,29 @@
 #include "pcr_pro/geometry/types.h"
 
 namespace pcr_pro {
+
+template <>
+const ParamSchema<ros_bridge::AutoMergeOptions>& paramSchema<ros_bridge::AutoMergeOptions>() {
+  using O = ros_bridge::AutoMergeOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"auto_merge", {
+      {"enabled", &O::enabled, R::any(), "", "merge automatically as the maps grow"},
+      {"target", &O::target, R::any(), "", "the agent every other one is merged into, one of agents; empty = the first"},
+      {"min_keyframes", &O::min_keyframes, R::atLeast(1), "keyframes",
+       "keyframes each map needs (with map points) before its first merge"},
+      {"new_keyframes", &O::new_keyframes, R::atLeast(1), "keyframes",
+       "new keyframe ids in the two maps together that make a pair merge again"},
+      {"after_graph_update", &O::after_graph_update, R::any(), "",
+       "merge a pair again when a graph update or a re-sent keyframe moved keyframes of either map"},
+      {"period", &O::period, R::closed(0.05, 60), "s", "how often the node checks whether a pair is due"},
+  }, ParamMessage::kNode, '/'};
+  return schema;
+}
+
 namespace ros_bridge {
 
 void validate(const AutoMergeOptions& o) {
-  const auto fail = [](const std::string& key, const std::string& what) {
-    throw InputError("auto_merge/" + key + ": " + what);
-  };
-  if (o.min_keyframes < 1) fail("min_keyframes", "must be >= 1, got " + std::to_string(o.min_keyframes));
-  if (o.new_keyframes < 1) fail("new_keyframes", "must be >= 1, got " + std::to_string(o.new_keyframes));
-  if (!(o.period >= 0.05 && o.period <= 60.0)) fail("period", "must be in [0.05, 60] s, got " + std::to_string(o.period));
+  checkRanges(paramSchema<AutoMergeOptions>(), o);
 }
 
 AutoMergeSchedule::AutoMergeSchedule(AutoMergeOptions options, std::string target, std::vector<std::string> sources)

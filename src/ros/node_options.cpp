@@ -9,6 +9,8 @@
 #include <filesystem>
 #include <set>
 #include <sstream>
+#include <type_traits>
+#include <variant>
 
 #include "pcr_pro/io/text_escape.h"
 #include "pcr_pro/merge/seed.h"
@@ -102,6 +104,15 @@ class ParamReader {
     read(key, &v);
     *value = v;
   }
+  // An XML-RPC int is signed 32 bits: unsigned options take one >= 0.
+  template <typename U, typename = std::enable_if_t<std::is_unsigned_v<U>>>
+  void read(const std::string& key, U* value) const {
+    if (!pnh_.hasParam(key)) return;
+    int v = 0;
+    read(key, &v);
+    if (v < 0) fail(key, "must be >= 0, got " + std::to_string(v));
+    *value = static_cast<U>(v);
+  }
   void read(const std::string& key, std::vector<std::string>* value) const {
     XmlRpc::XmlRpcValue v;
     if (!raw(key, &v)) return;
@@ -123,7 +134,71 @@ class ParamReader {
   const ros::NodeHandle& pnh_;
 };
 
+// Reads one parameter of a schema from the parameter server (absent: the default stays).
+template <typename O>
+struct ParamServerBinder {
+  const ParamReader& reader;
+  const std::string& key;
+  O* o;
+
+  template <typename T>
+  void operator()(T O::*member) const {
+    reader.read(key, &(o->*member));
+  }
+  void operator()(const TextParam<O>& text) const {
+    std::string value = text.get(*o);
+    reader.read(key, &value);
+    if (!text.set(o, value)) fail(key, std::string("must be ") + text.choices + ", got '" + value + "'");
+  }
+};
+
+// Reads every parameter of O's schema, named "<block>/<key>" under ~, and adds their names to known.
+template <typename O>
+void bindParams(const ParamReader& reader, O* o, std::set<std::string>* known) {
+  const ParamSchema<O>& schema = paramSchema<O>();
+  for (const Param<O>& p : schema.params) {
+    const std::string key = schema.fullKey(p, '/');
+    known->insert(key);
+    std::visit(ParamServerBinder<O>{reader, key, o}, p.member);
+  }
+}
+
 }  // namespace
+
+}  // namespace ros_bridge
+
+template <>
+const ParamSchema<ros_bridge::NodeOptions>& paramSchema<ros_bridge::NodeOptions>() {
+  using O = ros_bridge::NodeOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"", {
+      {"input",
+       TextParam<O>{+[](const O& o) { return std::string(ros_bridge::inputModeName(o.input)); },
+                    +[](O* o, const std::string& s) {
+                      if (s != "pcr_pro" && s != "lsd_slam") return false;
+                      o->input = s == "lsd_slam" ? ros_bridge::InputMode::kLsdSlam : ros_bridge::InputMode::kPcrPro;
+                      return true;
+                    },
+                    "'pcr_pro' or 'lsd_slam'"},
+       R::any(), "", "pcr_pro: X/keyframes + X/cloud; lsd_slam: X/lsd_slam/keyframes + X/lsd_slam/graph"},
+      {"queue_size", &O::queue_size, R::atLeast(1), "messages", "subscriber queue length per topic"},
+      {"publish_tf", &O::publish_tf, R::any(), "",
+       "broadcast the static tf target_map -> <source_map>_scaled after each merge"},
+      {"merge_config", &O::merge_config, R::any(), "", "merge configuration file (config/merge.yaml format); empty = defaults"},
+      {"icp_config", &O::icp_config, R::any(), "",
+       "registration configuration file (config/icp.yaml format) whose blocks replace merge_config's geometric stages"},
+      {"seed", &O::seed, R::closed(0, 2147483647), "",
+       "seed of every random stage of the merge: the same data and seed give the same edge bit for bit"},
+      {"diagnostic_period", &O::diagnostic_period, R::closed(0.1, 60), "s", "diagnostics publishing period"},
+      {"max_history_per_pair", &O::max_history_per_pair, R::atLeast(1), "edges",
+       "most successful edges kept per agent pair in ~edge_history / ~edges; beyond it the oldest goes"},
+      {"g2o_file", &O::g2o_file, R::any(), "",
+       "after each successful merge, its pose graph is written to this g2o file (replacing the previous one); empty = off"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+namespace ros_bridge {
 
 const char* inputModeName(InputMode mode) { return mode == InputMode::kLsdSlam ? "lsd_slam" : "pcr_pro"; }
 
@@ -150,14 +225,6 @@ void validate(const NodeOptions& o) {
       }
     }
   }
-  if (o.queue_size < 1) fail("queue_size", "must be >= 1, got " + std::to_string(o.queue_size));
-  if (o.seed < 0 || o.seed > 2147483647) fail("seed", "must be in [0, 2147483647], got " + std::to_string(o.seed));
-  if (!(o.diagnostic_period >= 0.1 && o.diagnostic_period <= 60.0)) {
-    fail("diagnostic_period", "must be in [0.1, 60] s, got " + std::to_string(o.diagnostic_period));
-  }
-  if (o.max_history_per_pair < 1) {
-    fail("max_history_per_pair", "must be >= 1, got " + std::to_string(o.max_history_per_pair));
-  }
   if (!o.g2o_file.empty()) {
     const std::filesystem::path file(o.g2o_file);
     std::error_code ec;
@@ -171,6 +238,7 @@ void validate(const NodeOptions& o) {
     fail("auto_merge/target", "'" + o.auto_merge.target + "' is not one of ~agents");
   }
   try {
+    checkRanges(paramSchema<NodeOptions>(), o);
     validate(o.lsd);
     validate(o.limits);
     validate(o.merge);
@@ -194,43 +262,13 @@ NodeOptions loadNodeOptions(const ros::NodeHandle& pnh) {
     o.agents.push_back(a);
   }
 
-  std::string input = inputModeName(o.input);
-  p.read("input", &input);
-  if (input == "pcr_pro") {
-    o.input = InputMode::kPcrPro;
-  } else if (input == "lsd_slam") {
-    o.input = InputMode::kLsdSlam;
-  } else {
-    fail("input", "must be 'pcr_pro' or 'lsd_slam', got '" + input + "'");
-  }
-  p.read("queue_size", &o.queue_size);
-  p.read("publish_tf", &o.publish_tf);
-  p.read("merge_config", &o.merge_config);
-  p.read("icp_config", &o.icp_config);
-  p.read("lsd/scaled_depth_var_th", &o.lsd.scaled_depth_var_th);
-  p.read("lsd/abs_depth_var_th", &o.lsd.abs_depth_var_th);
-  p.read("lsd/min_near_support", &o.lsd.min_near_support);
-  p.read("lsd/sparsify_factor", &o.lsd.sparsify_factor);
-  p.read("max_keyframes_per_agent", &o.limits.max_keyframes);
-  p.read("max_cloud_points_per_agent", &o.limits.max_cloud_points);
-  p.read("seed", &o.seed);
-  p.read("diagnostic_period", &o.diagnostic_period);
-  p.read("max_history_per_pair", &o.max_history_per_pair);
-  p.read("g2o_file", &o.g2o_file);
-  p.read("auto_merge/enabled", &o.auto_merge.enabled);
-  p.read("auto_merge/target", &o.auto_merge.target);
-  p.read("auto_merge/min_keyframes", &o.auto_merge.min_keyframes);
-  p.read("auto_merge/new_keyframes", &o.auto_merge.new_keyframes);
-  p.read("auto_merge/after_graph_update", &o.auto_merge.after_graph_update);
-  p.read("auto_merge/period", &o.auto_merge.period);
+  std::set<std::string> known{"agents"};
+  bindParams(p, &o, &known);
+  bindParams(p, &o.lsd, &known);
+  bindParams(p, &o.limits, &known);
+  bindParams(p, &o.auto_merge, &known);
 
   // Unknown keys under ~ are typos: refuse them rather than silently using a default.
-  std::set<std::string> known{"agents", "input", "queue_size", "publish_tf", "merge_config", "icp_config",
-                              "lsd/scaled_depth_var_th", "lsd/abs_depth_var_th", "lsd/min_near_support",
-                              "lsd/sparsify_factor", "max_keyframes_per_agent", "max_cloud_points_per_agent",
-                              "seed", "diagnostic_period", "max_history_per_pair", "g2o_file", "auto_merge/enabled",
-                              "auto_merge/target", "auto_merge/min_keyframes", "auto_merge/new_keyframes",
-                              "auto_merge/after_graph_update", "auto_merge/period"};
   for (const AgentOptions& a : o.agents) known.insert(a.name + "/frame_id");
   std::vector<std::string> all;
   if (ros::param::getParamNames(all)) {
@@ -259,6 +297,20 @@ NodeOptions loadNodeOptions(const ros::NodeHandle& pnh) {
   validate(o);
   setSeed(&o.merge, static_cast<std::uint64_t>(o.seed));
   return o;
+}
+
+std::string nodeParameterTable() {
+  std::vector<ParamRow> rows{
+      {"agents", "list of strings", "[agent_a, agent_b]", "at least two", "",
+       "unique relative names; topics X/... per agent; the first is the default merge target, the second the default "
+       "source"},
+      {"<agent>/frame_id", "string", "<agent>/map", "", "", "the agent's map frame: no leading slash, unique"}};
+  const auto add = [&rows](const std::vector<ParamRow>& more) { rows.insert(rows.end(), more.begin(), more.end()); };
+  add(paramRows(paramSchema<NodeOptions>(), '/'));
+  add(paramRows(paramSchema<StoreLimits>(), '/'));
+  add(paramRows(paramSchema<LsdFilterOptions>(), '/'));
+  add(paramRows(paramSchema<AutoMergeOptions>(), '/'));
+  return markdownTable(rows);
 }
 
 }  // namespace ros_bridge

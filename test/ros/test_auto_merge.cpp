@@ -1,9 +1,14 @@
 // When the merge node merges on its own (AutoMergeSchedule) and the validation of the node's new
 // options (issue 14): gtest, no ROS master.
 #include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
 
+#include <fstream>
 #include <functional>
+#include <set>
+#include <sstream>
 
+#include "pcr_pro/merge/parameter_tables.h"
 #include "pcr_pro/ros/auto_merge.h"
 #include "pcr_pro/ros/node_options.h"
 
@@ -112,12 +117,59 @@ TEST(NodeOptions, NewRangesAreEnforcedNamingTheKey) {
   }()));
   refused([](NodeOptions& o) { o.auto_merge.target = "agent_x"; }, "auto_merge/target");
   refused([](NodeOptions& o) { o.auto_merge.period = 0.0; }, "auto_merge/period");
+  // The schemas' range messages keep the node's shape: key, range, value.
+  refused([](NodeOptions& o) { o.queue_size = 0; }, "queue_size: must be >= 1, got 0");
+  refused([](NodeOptions& o) { o.lsd.min_near_support = 10; }, "lsd.min_near_support: must be in [0, 9], got 10");
+  refused([](NodeOptions& o) { o.limits.max_cloud_points = 999; },
+          "max_cloud_points_per_agent: must be in [1000, 200000000], got 999");
   refused([](NodeOptions& o) { o.agents[1].frame_id = "agent_a/map_scaled"; }, "agent_b/frame_id");
   NodeOptions d;
   EXPECT_EQ(d.autoMergeTarget(), "agent_a");
   d.auto_merge.target = "agent_b";
   EXPECT_EQ(d.autoMergeTarget(), "agent_b");
   EXPECT_EQ(scaledFrame("agent_b/map"), "agent_b/map_scaled");
+}
+
+TEST(NodeParameters, ReadmeTableIsTheSchemaTable) {
+  // The README's node parameters are printed from the schemas (pcr_pro_params --update README.md).
+  std::ifstream in(PCR_PRO_README);
+  std::stringstream readme;
+  readme << in.rdbuf();
+  const std::string table = nodeParameterTable();
+  EXPECT_NE(table.find("| `auto_merge/period` | double | `1` | in [0.05, 60] | s |"), std::string::npos) << table;
+  EXPECT_NE(readme.str().find("<!-- params:node -->\n" + table + "<!-- /params:node -->"), std::string::npos)
+      << "README.md: the node's parameter table differs from the schema: run pcr_pro_params --update README.md";
+}
+
+TEST(NodeParameters, ShippedFileStatesEveryParameterWithItsDefault) {
+  // config/merge_node.yaml documents every parameter with its default, but the two files that
+  // launch/merge_node.launch sets from its arguments.
+  const std::set<std::string> set_by_the_launch{"merge_config", "icp_config"};
+  const YAML::Node file = YAML::LoadFile(PCR_PRO_NODE_YAML);
+  std::vector<ParamRow> rows = paramRows(paramSchema<NodeOptions>(), '/');
+  for (const auto& more : {paramRows(paramSchema<StoreLimits>(), '/'), paramRows(paramSchema<LsdFilterOptions>(), '/'),
+                           paramRows(paramSchema<AutoMergeOptions>(), '/')}) {
+    rows.insert(rows.end(), more.begin(), more.end());
+  }
+  ASSERT_GT(rows.size(), 15u);
+  for (const ParamRow& row : rows) {
+    YAML::Node node = file;  // reset(), not =: assigning a YAML::Node writes into the tree
+    std::string rest = row.key;
+    for (std::size_t slash; node.IsMap() && (slash = rest.find('/')) != std::string::npos; rest = rest.substr(slash + 1)) {
+      node.reset(node[rest.substr(0, slash)]);
+    }
+    const bool stated = node.IsMap() && node[rest];
+    EXPECT_EQ(stated, set_by_the_launch.count(row.key) == 0) << row.key;
+    if (!stated) continue;
+    const std::string value = node[rest].Scalar();
+    if (row.type == "double") {
+      EXPECT_EQ(std::stod(value), std::stod(row.default_value)) << row.key;
+    } else {
+      EXPECT_EQ(value.empty() ? "\"\"" : value, row.default_value) << row.key;
+    }
+  }
+  ASSERT_TRUE(file["agents"].IsSequence());
+  EXPECT_EQ(file["agents"].as<std::vector<std::string>>(), (std::vector<std::string>{"agent_a", "agent_b"}));
 }
 
 }  // namespace

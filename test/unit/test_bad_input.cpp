@@ -796,6 +796,8 @@ INSTANTIATE_TEST_SUITE_P(
         ConfigDefect{"Garbage", garbage(500, 19), {}, ""},
         ConfigDefect{"TopLevelList", "- a\n- b\n", {"top level"}, ""},
         ConfigDefect{"UnknownKey", "limits: {max_points: 3}\n", {"limits.max_points", "unknown"}, ""},
+        ConfigDefect{"DuplicateKey", "icp:\n  stop:\n    max_iterations: 5\n    max_iterations: 90\n",
+                     {"icp.stop.max_iterations", "duplicate key (lines 3 and 4)"}, ""},
         ConfigDefect{"LimitZero", "limits: {max_cloud_points: 0}\n", {"limits.max_cloud_points"}, ""},
         ConfigDefect{"LimitTooLarge", "limits: {max_cloud_points: 300000000}\n", {"limits.max_cloud_points"}, ""},
         ConfigDefect{"LimitWrongType", "limits: {max_keyframes: many}\n", {"limits.max_keyframes", "wrong type"}, ""},

@@ -1,11 +1,17 @@
 #include <gtest/gtest.h>
 
+#include <yaml-cpp/yaml.h>
+
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include "pcr_pro/merge/merge_options.h"
+#include "pcr_pro/merge/parameter_tables.h"
 #include "pcr_pro/registration/config.h"
 
 namespace pcr_pro {
 namespace {
-
-const std::string kShipped = std::string(PCR_PRO_CONFIG_DIR) + "/icp.yaml";
 
 std::string errorOf(const std::string& yaml) {
   try {
@@ -16,33 +22,128 @@ std::string errorOf(const std::string& yaml) {
   return "";
 }
 
-TEST(Config, ShippedFileLoadsAndStatesTheStructDefaults) {
-  // config/icp.yaml documents the defaults: its values must equal the option structs' defaults,
-  // so that the defaults stay written once.
-  const RegistrationOptions shipped = loadRegistrationConfig(kShipped);
-  const RegistrationOptions d;
-  EXPECT_EQ(shipped.scale_detection.trim_fraction, d.scale_detection.trim_fraction);
-  EXPECT_EQ(shipped.scale_detection.ratio_threshold, d.scale_detection.ratio_threshold);
-  EXPECT_EQ(shipped.filters.steps.size(), d.filters.steps.size());
-  EXPECT_EQ(shipped.icp.max_source_points, d.icp.max_source_points);
-  EXPECT_EQ(shipped.icp.coarse_source_points, d.icp.coarse_source_points);
-  EXPECT_EQ(shipped.icp.extrapolation, d.icp.extrapolation);
-  EXPECT_EQ(shipped.icp.normal_neighbors, d.icp.normal_neighbors);
-  EXPECT_EQ(shipped.icp.max_correspondence_distance, d.icp.max_correspondence_distance);
-  EXPECT_EQ(shipped.icp.trim_ratio, d.icp.trim_ratio);
-  EXPECT_EQ(shipped.icp.min_correspondences, d.icp.min_correspondences);
-  EXPECT_EQ(shipped.icp.error_metric, d.icp.error_metric);
-  EXPECT_EQ(shipped.icp.estimate_scale, d.icp.estimate_scale);
-  EXPECT_EQ(shipped.icp.max_scale_step, d.icp.max_scale_step);
-  EXPECT_EQ(shipped.icp.min_scale_ratio, d.icp.min_scale_ratio);
-  EXPECT_EQ(shipped.icp.max_scale_ratio, d.icp.max_scale_ratio);
-  EXPECT_EQ(shipped.icp.max_iterations, d.icp.max_iterations);
-  EXPECT_EQ(shipped.icp.min_relative_translation_change, d.icp.min_relative_translation_change);
-  EXPECT_EQ(shipped.icp.min_rotation_change, d.icp.min_rotation_change);
-  EXPECT_EQ(shipped.icp.min_scale_change, d.icp.min_scale_change);
-  EXPECT_EQ(shipped.covariance.sensor_noise_stddev, d.covariance.sensor_noise_stddev);
-  EXPECT_EQ(shipped.covariance.degeneracy_condition_threshold, d.covariance.degeneracy_condition_threshold);
-  EXPECT_EQ(shipped.covariance.normal_neighbors, d.covariance.normal_neighbors);
+std::string readText(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// Every parameter of a stage: the shipped file states it (so it documents every default), and its
+// value there equals the struct default, except the keys the file deliberately changes.
+template <typename O>
+void expectShippedDefaults(const std::string& file, const YAML::Node& root, const O& shipped,
+                           const std::set<std::string>& changed = {}) {
+  const ParamSchema<O>& schema = paramSchema<O>();
+  const O defaults{};
+  for (const Param<O>& p : schema.params) {
+    const std::string key = schema.fullKey(p, '.');
+    YAML::Node node = root;  // reset(), not =: assigning a YAML::Node writes into the tree
+    std::string rest = key;
+    for (std::size_t dot; node.IsMap() && (dot = rest.find('.')) != std::string::npos; rest = rest.substr(dot + 1)) {
+      node.reset(node[rest.substr(0, dot)]);
+    }
+    EXPECT_TRUE(node.IsMap() && node[rest]) << file << " does not state " << key;
+    EXPECT_EQ(paramEqual(p, shipped, defaults), changed.count(key) == 0)
+        << file << ": " << key << " = " << paramValueText(p, shipped) << ", default " << paramValueText(p, defaults);
+  }
+}
+
+TEST(Config, ShippedFilesStateEveryParameterWithItsDefault) {
+  // Neither shipped file changes a default: they document them (a file that means to change one
+  // lists it in `changed`, with the reason).
+  const std::string icp = std::string(PCR_PRO_CONFIG_DIR) + "/icp.yaml";
+  const YAML::Node icp_yaml = YAML::LoadFile(icp);
+  const RegistrationOptions r = loadRegistrationConfig(icp);
+  expectShippedDefaults(icp, icp_yaml, r.scale_detection);
+  expectShippedDefaults(icp, icp_yaml, r.icp);
+  expectShippedDefaults(icp, icp_yaml, r.covariance);
+  EXPECT_TRUE(r.filters.steps.empty());
+  const std::string merge = std::string(PCR_PRO_CONFIG_DIR) + "/merge.yaml";
+  const YAML::Node merge_yaml = YAML::LoadFile(merge);
+  const MergeOptions m = loadMergeConfig(merge);
+  expectShippedDefaults(merge, merge_yaml, m.matching);
+  expectShippedDefaults(merge, merge_yaml, m.relative_pose);
+  expectShippedDefaults(merge, merge_yaml, m.keyframe_depth);
+  expectShippedDefaults(merge, merge_yaml, m.scale_estimation);
+  expectShippedDefaults(merge, merge_yaml, m.merge);
+  expectShippedDefaults(merge, merge_yaml, m.limits);
+}
+
+TEST(Config, ReadmeTablesAreTheSchemaTables) {
+  // The README's parameter tables are printed from the schemas (pcr_pro_params --update README.md):
+  // each generated section is present once and holds exactly what the schemas print now.
+  const std::string readme = readText(std::string(PCR_PRO_CONFIG_DIR) + "/../README.md");
+  const auto tables = configParameterTables();
+  ASSERT_EQ(tables.size(), 2u);
+  for (const auto& [name, body] : tables) {
+    EXPECT_NE(readme.find("<!-- params:" + name + " -->\n" + body + "<!-- /params:" + name + " -->"), std::string::npos)
+        << "README.md: the section " << name << " differs from the schema: run pcr_pro_params --update README.md";
+  }
+  EXPECT_EQ(withParameterTables(readme, tables), readme);
+}
+
+TEST(Config, SchemaRowsCoverEveryStageWithTypesRangesAndDefaults) {
+  const std::vector<ParamRow> rows = paramRows(paramSchema<IcpOptions>());
+  ASSERT_FALSE(rows.empty());
+  const auto row = [&](const std::string& key) {
+    for (const ParamRow& r : rows) {
+      if (r.key == key) return r;
+    }
+    return ParamRow{};
+  };
+  EXPECT_EQ(row("icp.stop.max_iterations").type, "int");
+  EXPECT_EQ(row("icp.stop.max_iterations").default_value, std::to_string(IcpOptions().max_iterations));
+  EXPECT_EQ(row("icp.stop.max_iterations").range, ">= 1");
+  EXPECT_EQ(row("icp.outlier_rejection.trim_ratio").range, "in (0, 1]");
+  EXPECT_EQ(row("icp.error_minimizer.type").default_value, errorMetricName(IcpOptions().error_metric));
+  EXPECT_EQ(paramRows(paramSchema<CovarianceOptions>())[2].range, "0 or >= 100");
+  const auto complete = [](const std::vector<ParamRow>& stage) {
+    for (const ParamRow& r : stage) {
+      EXPECT_FALSE(r.type.empty() || r.default_value.empty() || r.doc.empty()) << r.key << ": incomplete";
+    }
+    return !stage.empty();
+  };
+  EXPECT_TRUE(complete(paramRows(paramSchema<FeatureMatchingOptions>())));
+  EXPECT_TRUE(complete(paramRows(paramSchema<RelativePoseOptions>())));
+  EXPECT_TRUE(complete(paramRows(paramSchema<KeyframeDepthOptions>())));
+  EXPECT_TRUE(complete(paramRows(paramSchema<ScaleEstimationOptions>())));
+  EXPECT_TRUE(complete(paramRows(paramSchema<MergeGateOptions>())));
+  EXPECT_TRUE(complete(paramRows(paramSchema<InputLimits>())));
+  EXPECT_TRUE(complete(paramRows(paramSchema<ScaleDetectionOptions>())));
+  EXPECT_TRUE(complete(paramRows(paramSchema<CropOptions>())));
+  EXPECT_TRUE(complete(rows));
+  EXPECT_TRUE(complete(paramRows(paramSchema<CovarianceOptions>())));
+}
+
+TEST(Config, DuplicateKeysAreRejectedWithBothLines) {
+  // yaml-cpp keeps the first of two equal keys silently: the binder refuses them.
+  const std::string e = errorOf("icp:\n  stop:\n    max_iterations: 5\n    max_iterations: 90\n");
+  EXPECT_NE(e.find("test.yaml: icp.stop.max_iterations: duplicate key (lines 3 and 4)"), std::string::npos) << e;
+  EXPECT_NE(errorOf("icp: {}\nicp: {}\n").find("icp: duplicate key (lines 1 and 2)"), std::string::npos);
+  EXPECT_NE(errorOf("filters:\n  - crop: {axis: x, axis: y}\n").find("filters[0].crop.axis: duplicate key"),
+            std::string::npos);
+}
+
+TEST(Config, BinderErrorsGiveTheLine) {
+  EXPECT_NE(errorOf("icp:\n  stop:\n    max_iteration: 5\n").find("unknown key (line 3)"), std::string::npos);
+  EXPECT_NE(errorOf("\ncovariance:\n  normal_neighbors: x\n").find("covariance.normal_neighbors: has the wrong type (line 3)"),
+            std::string::npos);
+  EXPECT_NE(errorOf("icp:\n  stop: {max_iterations: 0}\n").find("icp.stop.max_iterations: must be >= 1 (line 2)"),
+            std::string::npos);
+  EXPECT_NE(errorOf("scale_detection: {ratio_threshold: .inf}\n").find("scale_detection.ratio_threshold: must be > 1"),
+            std::string::npos);
+}
+
+TEST(Config, ScaleDetectionHasItsOwnValidate) {
+  EXPECT_NO_THROW(validate(ScaleDetectionOptions()));
+  // trim_fraction beyond 0.45, ratio_threshold not above 1
+  for (const ScaleDetectionOptions& bad : {ScaleDetectionOptions{0.5, 1.2}, ScaleDetectionOptions{0.05, 1.0}}) {
+    EXPECT_THROW(validate(bad), InputError);
+    RegistrationOptions r;
+    r.scale_detection = bad;
+    EXPECT_THROW(validate(r), InputError) << "the registration's validate() runs it";
+  }
 }
 
 TEST(Config, FilterChainIsReadInOrder) {

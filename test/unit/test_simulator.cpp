@@ -10,6 +10,7 @@
 #include <fstream>
 #include <functional>
 #include <iterator>
+#include <map>
 #include <numeric>
 #include <opencv2/imgproc.hpp>
 #include <sstream>
@@ -708,6 +709,45 @@ TEST(SimConfig, ShippedConfigIsTheDefaultsAndRoundTrips) {
   o.per_agent[1].bend_deg = -2.5;
   const std::string yaml = simulatorConfigYaml(o);
   EXPECT_EQ(simulatorConfigYaml(parseSimulatorConfig(yaml, "test")), yaml);
+}
+
+TEST(SimConfig, DemoConfigChangesOnlyTheFieldsItMeansTo) {
+  // config/sim_demo.yaml is the defaults but for a quick, drifting three-agent demo: compared field
+  // by field (one line of simulatorConfigYaml() per field of the multi-line blocks), it changes
+  // exactly these, each for the reason given; any other difference is a drift of the file.
+  const std::map<std::string, std::string> changed{
+      {"seed", "its own world"},
+      {"agents", "a third agent (agent_c) for the multi-agent demo"},
+      {"drift.scale_drift", "LSD-like scale drift along each path"},
+      {"drift.bend_deg", "LSD-like rotation drift"},
+      {"drift.pose_noise_rotation_deg", "per-keyframe jitter"},
+      {"drift.pose_noise_translation", "per-keyframe jitter"},
+      {"drift.loop_closure", "a final graph update that moves keyframes (auto_merge re-merges)"},
+      {"trajectory.azimuth_span_deg", "a short path"},
+      {"trajectory.keyframe_distance", "few keyframes: a quick demo"},
+      {"trajectory.keyframe_angle_deg", "few keyframes: a quick demo"}};
+  const auto fields = [](const SimulatorOptions& o) {
+    std::map<std::string, std::string> out;
+    std::istringstream in(simulatorConfigYaml(o));
+    std::string block;
+    for (std::string line; std::getline(in, line);) {
+      const std::size_t colon = line.find(':');
+      if (colon == std::string::npos) continue;
+      const bool nested = line.rfind("  ", 0) == 0;
+      const std::string key = line.substr(nested ? 2 : 0, colon - (nested ? 2 : 0));
+      if (!nested) block = key;
+      out[nested ? block + "." + key : key] = line.substr(colon + 1);
+    }
+    return out;
+  };
+  const auto demo = fields(loadSimulatorConfig(std::string(PCR_PRO_CONFIG_DIR) + "/sim_demo.yaml"));
+  const auto defaults = fields(SimulatorOptions());
+  ASSERT_EQ(demo.size(), defaults.size());
+  ASSERT_GT(demo.size(), 40u) << "one entry per field of the multi-line blocks";
+  for (const auto& [key, value] : defaults) {
+    ASSERT_TRUE(demo.count(key)) << key;
+    EXPECT_EQ(demo.at(key) != value, changed.count(key) == 1) << "sim_demo.yaml: " << key << ":" << demo.at(key);
+  }
 }
 
 TEST(SimConfig, BadConfigsNameTheKey) {

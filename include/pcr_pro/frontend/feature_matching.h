@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -57,6 +58,10 @@ struct FeatureMatchingOptions {
   /// equal matches and votes, bit for bit [-].
   std::uint64_t seed = kDefaultSeed;
 };
+
+/// Every parameter of FeatureMatchingOptions (YAML block `matching`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<FeatureMatchingOptions>& paramSchema<FeatureMatchingOptions>();
 
 /**
  * @brief Checks every field of the options.

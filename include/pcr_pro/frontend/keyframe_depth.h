@@ -13,6 +13,7 @@
 
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -52,6 +53,10 @@ struct KeyframeDepthOptions {
   /// unbiased to (σ/idepth)² = 0.25 %.
   double max_relative_stddev = 0.05;
 };
+
+/// Every parameter of KeyframeDepthOptions (YAML block `keyframe_depth`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<KeyframeDepthOptions>& paramSchema<KeyframeDepthOptions>();
 
 /// A looked-up depth and its uncertainty.
 struct DepthSample {

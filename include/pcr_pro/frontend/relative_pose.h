@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -86,6 +87,10 @@ struct RelativePoseOptions {
   /// bearings, options and seed give equal results, bit for bit [-].
   std::uint64_t seed = kDefaultSeed;
 };
+
+/// Every parameter of RelativePoseOptions (YAML block `relative_pose`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<RelativePoseOptions>& paramSchema<RelativePoseOptions>();
 
 /**
  * @brief Checks every field of the options.

@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -50,6 +51,10 @@ struct ScaleEstimationOptions {
   /// max(|lambda0|, median |P_t|). Large = the data dominate the result.
   double prior_relative_stddev = 1.0;
 };
+
+/// Every parameter of ScaleEstimationOptions (YAML block `scale_estimation`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<ScaleEstimationOptions>& paramSchema<ScaleEstimationOptions>();
 
 /// @throw InputError naming the option (e.g. "scale_estimation.passes must be >= 1")
 void validate(const ScaleEstimationOptions& options);

@@ -11,6 +11,7 @@
 #pragma once
 
 #include <cstdint>
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -28,6 +29,10 @@ struct InputLimits {
   /// Most pixels of the camera (width x height), hence of each keyframe and depth image [px], >= 1.
   std::int64_t max_image_pixels = 4096LL * 4096LL;
 };
+
+/// Every parameter of InputLimits (YAML block `limits`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<InputLimits>& paramSchema<InputLimits>();
 
 /// @throw InputError naming the first out-of-range bound ("limits.<key> must be ...")
 void validate(const InputLimits& limits);

@@ -12,6 +12,7 @@
 
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/geometry/sim3.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -32,6 +33,10 @@ struct LsdFilterOptions {
   /// (viewer: sparsifyFactor = 1).
   int sparsify_factor = 1;
 };
+
+/// Every parameter of LsdFilterOptions (ROS parameters `~lsd/...`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<LsdFilterOptions>& paramSchema<LsdFilterOptions>();
 
 /// @throw InputError naming the option ("lsd.min_near_support: must be in [0, 9], got 12")
 void validate(const LsdFilterOptions& options);

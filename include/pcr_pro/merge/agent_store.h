@@ -17,6 +17,7 @@
 
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/io/lsd_keyframe.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -34,6 +35,10 @@ struct StoreLimits {
   /// voxel grid cannot get there).
   int max_cloud_points = 1'000'000;
 };
+
+/// Every parameter of StoreLimits (ROS parameters `~max_keyframes_per_agent`, `~max_cloud_points_per_agent`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<StoreLimits>& paramSchema<StoreLimits>();
 
 /// @throw InputError "max_keyframes_per_agent: ..." / "max_cloud_points_per_agent: ..." when out of range
 void validate(const StoreLimits& limits);

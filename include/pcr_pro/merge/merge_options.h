@@ -14,6 +14,7 @@
 #include "pcr_pro/frontend/scale_estimation.h"
 #include "pcr_pro/io/input_limits.h"
 #include "pcr_pro/registration/config.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -55,6 +56,10 @@ struct MergeGateOptions {
   /// Largest rotation the refinement may apply to the keyframe estimate [deg], > 0.
   double max_icp_rotation_correction_deg = 15.0;
 };
+
+/// Every parameter of MergeGateOptions (YAML block `merge`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<MergeGateOptions>& paramSchema<MergeGateOptions>();
 
 /// @throw InputError naming the option when out of range
 void validate(const MergeGateOptions& options);

@@ -1,8 +1,9 @@
 /**
  * @file config.h
  * @brief Registration configuration: one options struct per stage, loaded from YAML
- * (config/icp.yaml). Missing keys keep the struct default; unknown keys and out-of-range
- * values are errors that name the file and key.
+ * (config/icp.yaml), bound through each stage's parameter schema (io/param_schema.h). Missing
+ * keys keep the struct default; unknown keys, keys given twice and out-of-range values are errors
+ * that name the file, the key and its line.
  */
 #pragma once
 
@@ -30,8 +31,8 @@ void validate(const RegistrationOptions& options);
  * @brief Loads a registration configuration file.
  * @param[in] path YAML file with optional blocks scale_detection, filters, icp, covariance
  * @return the options, defaults for absent keys, validated
- * @throw InputError "<path>: <key>: <what is wrong>" for unreadable files, bad YAML, unknown
- * keys, wrong types or out-of-range values
+ * @throw InputError "<path>: <key>: <what is wrong> (line N)" for unreadable files, bad YAML,
+ * unknown or duplicate keys, wrong types or out-of-range values
  */
 RegistrationOptions loadRegistrationConfig(const std::string& path);
 

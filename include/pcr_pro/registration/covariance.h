@@ -36,6 +36,7 @@
 #include "pcr_pro/registration/icp.h"
 #include "pcr_pro/geometry/sim3.h"
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -69,6 +70,10 @@ struct CovarianceOptions {
   /// correspondences carry none (point-to-point ICP) (>= 3).
   int normal_neighbors = 10;
 };
+
+/// Every parameter of CovarianceOptions (YAML block `covariance`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<CovarianceOptions>& paramSchema<CovarianceOptions>();
 
 /// @throw InputError naming the option when out of range
 void validate(const CovarianceOptions& options);

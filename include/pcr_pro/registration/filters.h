@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -23,11 +24,19 @@ struct CropOptions {
   bool keep_lower = true;      ///< keep the points with the lowest coordinates (else the highest)
 };
 
+/// Every parameter of CropOptions (filter step `crop`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<CropOptions>& paramSchema<CropOptions>();
+
 /// Voxel grid: one point (the centroid) per occupied voxel. voxelGridFilter() throws InputError
 /// for a cloud with non-finite points or a leaf giving more than 2^52 voxels across the cloud.
 struct VoxelGridOptions {
   double leaf_size = 0.0;  ///< voxel edge [cloud units]; 0 disables the filter
 };
+
+/// Every parameter of VoxelGridOptions (filter step `voxel_grid`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<VoxelGridOptions>& paramSchema<VoxelGridOptions>();
 
 /// Statistical outlier removal: drop points whose mean distance to their k neighbours is large.
 struct OutlierRemovalOptions {
@@ -35,17 +44,29 @@ struct OutlierRemovalOptions {
   double stddev_multiplier = 2.0;  ///< threshold = mean + multiplier * stddev of the mean distances [-]
 };
 
+/// Every parameter of OutlierRemovalOptions (filter step `outlier_removal`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<OutlierRemovalOptions>& paramSchema<OutlierRemovalOptions>();
+
 /// Random sampling: keep each point with a fixed probability (deterministic seed).
 struct RandomSamplingOptions {
   double keep_ratio = 1.0;  ///< fraction kept, in (0, 1] [-]
   uint32_t seed = 42;       ///< random seed
 };
 
+/// Every parameter of RandomSamplingOptions (filter step `random_sampling`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<RandomSamplingOptions>& paramSchema<RandomSamplingOptions>();
+
 /// Caps the number of points by uniform random subsampling (scale-free, unlike a voxel grid).
 struct MaxPointsOptions {
   int max_points = 0;  ///< largest number of points kept; 0 disables the filter
   uint32_t seed = 42;  ///< random seed
 };
+
+/// Every parameter of MaxPointsOptions (filter step `max_points`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<MaxPointsOptions>& paramSchema<MaxPointsOptions>();
 
 /// One step of a filter chain.
 struct FilterStep {

@@ -13,6 +13,7 @@
 #include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/geometry/sim3.h"
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -109,6 +110,10 @@ struct IcpOptions {
   /// Fewer correspondences than this after rejection fails the registration.
   int min_correspondences = 10;
 };
+
+/// Every parameter of IcpOptions (YAML block `icp`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<IcpOptions>& paramSchema<IcpOptions>();
 
 /// @throw InputError naming the option when out of range
 void validate(const IcpOptions& options);

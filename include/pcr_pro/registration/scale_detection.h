@@ -7,6 +7,7 @@
 #include <Eigen/Core>
 
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -18,6 +19,13 @@ struct ScaleDetectionOptions {
   /// A target/source size ratio above this (or below its inverse) flags a scale difference [-], > 1.
   double ratio_threshold = 1.2;
 };
+
+/// Every parameter of ScaleDetectionOptions (YAML block `scale_detection`): key, type, default (the member initialiser), range, unit, doc.
+template <>
+const ParamSchema<ScaleDetectionOptions>& paramSchema<ScaleDetectionOptions>();
+
+/// @throw InputError naming the first option out of range
+void validate(const ScaleDetectionOptions& options);
 
 /// Robust extent of one cloud along its principal axes.
 struct CloudExtent {

@@ -13,6 +13,8 @@
 #include <string>
 #include <vector>
 
+#include "pcr_pro/io/param_schema.h"
+
 namespace pcr_pro {
 namespace ros_bridge {
 
@@ -37,6 +39,14 @@ struct AutoMergeOptions {
 
 /// @throw InputError "auto_merge/<key>: ..." for the first option out of range
 void validate(const AutoMergeOptions& options);
+
+}  // namespace ros_bridge
+
+/// Every parameter of AutoMergeOptions (ROS parameters `~auto_merge/...`).
+template <>
+const ParamSchema<ros_bridge::AutoMergeOptions>& paramSchema<ros_bridge::AutoMergeOptions>();
+
+namespace ros_bridge {
 
 /// What the node has received of one agent's map so far (monotonic counters).
 struct MapProgress {

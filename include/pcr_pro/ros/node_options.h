@@ -83,6 +83,15 @@ struct NodeOptions {
   const std::string& autoMergeTarget() const { return auto_merge.target.empty() ? agents[0].name : auto_merge.target; }
 };
 
+}  // namespace ros_bridge
+
+/// The node's own parameters (NodeOptions' scalars: `~input`, `~queue_size`, ...; the agents, the
+/// lsd filters, the store limits and auto_merge have schemas of their own).
+template <>
+const ParamSchema<ros_bridge::NodeOptions>& paramSchema<ros_bridge::NodeOptions>();
+
+namespace ros_bridge {
+
 /// @throw InputError "~key: what" for the first invalid option (agents: at least two, unique
 /// valid relative names; frame ids non-empty, unique, no leading slash, none the scaled frame of
 /// another; queue_size >= 1; lsd filters; store limits; seed; diagnostic_period; auto_merge, whose
@@ -100,6 +109,13 @@ void validate(const NodeOptions& options);
  * @throw InputError "~key: what is wrong" (or the configuration file's own error)
  */
 NodeOptions loadNodeOptions(const ros::NodeHandle& pnh);
+
+/**
+ * @brief The README's table of the node's parameters, printed from their schemas (the agents and
+ * their frames, NodeOptions, StoreLimits, LsdFilterOptions, AutoMergeOptions).
+ * @return a Markdown table (parameter_tables.h)
+ */
+std::string nodeParameterTable();
 
 }  // namespace ros_bridge
 }  // namespace pcr_pro

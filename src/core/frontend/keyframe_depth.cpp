@@ -17,25 +17,32 @@ constexpr long long kMaxPixels = 1LL << 28;
 
 }  // namespace
 
+template <>
+const ParamSchema<KeyframeDepthOptions>& paramSchema<KeyframeDepthOptions>() {
+  using O = KeyframeDepthOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"keyframe_depth", {
+      {"neighborhood_radius_px", &O::neighborhood_radius_px, R::closed(0, kMaxNeighborhoodRadiusPx), "px",
+       "depth lookup neighbourhood radius"},
+      {"min_depth", &O::min_depth, R::above(0), "camera units", "smaller depths are unknown"},
+      {"max_depth", &O::max_depth, R::above(0).orZero(), "camera units",
+       "larger depths are unknown; 0 = no limit, else > min_depth"},
+      {"max_cloud_points_projected", &O::max_cloud_points_projected, R::atLeast(0), "",
+       "cap on the map points projected into a keyframe without depth image; 0 = all"},
+      {"depth_consistency", &O::depth_consistency, R::atLeast(0), "-",
+       "largest relative depth spread in the neighbourhood (depth without per-pixel uncertainty)"},
+      {"spatial_sigma_px", &O::spatial_sigma_px, R::above(0), "px",
+       "depth with per-pixel uncertainty (LSD-SLAM): pixels weighted by exp(-d^2 / (2 sigma^2)) / var(inverse depth)"},
+      {"max_relative_stddev", &O::max_relative_stddev, R::open(0, 1), "-",
+       "depth with per-pixel uncertainty: a looked-up depth less certain than this (relative stddev) is unknown"},
+  }};
+  return schema;
+}
+
 void validate(const KeyframeDepthOptions& o) {
-  if (o.neighborhood_radius_px < 0) throw InputError("keyframe_depth.neighborhood_radius_px must be >= 0");
-  if (o.neighborhood_radius_px > kMaxNeighborhoodRadiusPx) {
-    throw InputError("keyframe_depth.neighborhood_radius_px must be <= " + std::to_string(kMaxNeighborhoodRadiusPx));
-  }
-  if (!(o.min_depth > 0.0 && std::isfinite(o.min_depth)))
-    throw InputError("keyframe_depth.min_depth must be finite and > 0");
-  if (!(o.max_depth == 0.0 || (o.max_depth > o.min_depth && std::isfinite(o.max_depth)))) {
+  checkRanges(paramSchema<KeyframeDepthOptions>(), o);
+  if (!(o.max_depth == 0.0 || o.max_depth > o.min_depth)) {
     throw InputError("keyframe_depth.max_depth must be 0 (no limit) or finite and > keyframe_depth.min_depth");
-  }
-  if (o.max_cloud_points_projected < 0) throw InputError("keyframe_depth.max_cloud_points_projected must be >= 0");
-  if (!(o.depth_consistency >= 0.0 && std::isfinite(o.depth_consistency))) {
-    throw InputError("keyframe_depth.depth_consistency must be finite and >= 0");
-  }
-  if (!(o.spatial_sigma_px > 0.0 && std::isfinite(o.spatial_sigma_px))) {
-    throw InputError("keyframe_depth.spatial_sigma_px must be finite and > 0");
-  }
-  if (!(o.max_relative_stddev > 0.0 && o.max_relative_stddev < 1.0)) {
-    throw InputError("keyframe_depth.max_relative_stddev must be in (0, 1)");
   }
 }
 

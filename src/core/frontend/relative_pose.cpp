@@ -115,24 +115,35 @@ int relativePoseSampleSize(RelativePoseAlgorithm algorithm) {
   return 9;
 }
 
+template <>
+const ParamSchema<RelativePoseOptions>& paramSchema<RelativePoseOptions>() {
+  using O = RelativePoseOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"relative_pose", {
+      {"algorithm",
+       TextParam<O>{+[](const O& o) { return std::string(relativePoseAlgorithmName(o.algorithm)); },
+                    +[](O* o, const std::string& s) { return parseRelativePoseAlgorithm(s, &o->algorithm); },
+                    "NISTER, STEWENIUS, SEVENPT or EIGHTPT"},
+       R::any(), "", "OpenGV minimal solver inside RANSAC"},
+      {"pixel_error", &O::pixel_error, R::above(0), "px",
+       "inlier threshold psi; RANSAC threshold 2(1 - cos(atan(psi/f)))"},
+      {"max_iterations", &O::max_iterations, R::atLeast(1), "", "RANSAC iteration limit"},
+      {"probability", &O::probability, R::open(0, 1), "-", "RANSAC confidence"},
+      {"nonlinear_refinement", &O::nonlinear_refinement, R::any(), "",
+       "refine on the inliers, then re-select the inliers"},
+      {"min_inliers", &O::min_inliers, R::atLeast(5), "", "fewer inliers: the keyframe pair is rejected"},
+      {"min_inlier_ratio", &O::min_inlier_ratio, R::closed(0, 1), "-", "smaller inlier fraction: rejected"},
+      {"min_spread_px", &O::min_spread_px, R::atLeast(0), "px at focal length",
+       "degeneracy guard: inlier bearings spread less than this (on one image line) are rejected"},
+  }};
+  return schema;
+}
+
 void validate(const RelativePoseOptions& options) {
   if (!parseRelativePoseAlgorithm(relativePoseAlgorithmName(options.algorithm), nullptr)) {
     throw InputError("relative_pose.algorithm must be one of NISTER, STEWENIUS, SEVENPT, EIGHTPT");
   }
-  if (!(options.pixel_error > 0.0) || !std::isfinite(options.pixel_error)) {
-    throw InputError("relative_pose.pixel_error must be a finite number > 0");
-  }
-  if (!(options.max_iterations >= 1)) throw InputError("relative_pose.max_iterations must be >= 1");
-  if (!(options.probability > 0.0 && options.probability < 1.0)) {
-    throw InputError("relative_pose.probability must be in (0, 1)");
-  }
-  if (!(options.min_inliers >= 5)) throw InputError("relative_pose.min_inliers must be >= 5");
-  if (!(options.min_inlier_ratio >= 0.0 && options.min_inlier_ratio <= 1.0)) {
-    throw InputError("relative_pose.min_inlier_ratio must be in [0, 1]");
-  }
-  if (!(options.min_spread_px >= 0.0) || !std::isfinite(options.min_spread_px)) {
-    throw InputError("relative_pose.min_spread_px must be a finite number >= 0");
-  }
+  checkRanges(paramSchema<RelativePoseOptions>(), options);
 }
 
 double ransacThreshold(double pixel_error, double focal_px) {

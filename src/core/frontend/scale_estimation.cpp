@@ -85,23 +85,27 @@ std::string formatDouble(double v) {
 
 }  // namespace
 
+template <>
+const ParamSchema<ScaleEstimationOptions>& paramSchema<ScaleEstimationOptions>() {
+  using O = ScaleEstimationOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"scale_estimation", {
+      {"relative_depth_noise", &O::relative_depth_noise, R::above(0), "-", "depth noise as a fraction of the distance"},
+      {"relative_lateral_noise", &O::relative_lateral_noise, R::above(0), "-",
+       "noise across the ray as a fraction of the distance"},
+      {"gating_chi2", &O::gating_chi2, R::above(0), "-", "innovation gate, chi-square with 3 DoF (11.34 = 99 %)"},
+      {"min_inliers", &O::min_inliers, R::atLeast(2), "", "fewer accepted matches: SCALE_FAILED"},
+      {"min_inlier_ratio", &O::min_inlier_ratio, R::closed(0, 1), "-", "smaller accepted fraction: SCALE_FAILED"},
+      {"max_relative_stddev", &O::max_relative_stddev, R::above(0), "-", "larger stddev/scale: SCALE_FAILED"},
+      {"passes", &O::passes, R::atLeast(1), "", "Kalman filter passes over the matches"},
+      {"prior_relative_stddev", &O::prior_relative_stddev, R::above(0), "-",
+       "prior stddev of each pass, relative to the estimate"},
+  }};
+  return schema;
+}
+
 void validate(const ScaleEstimationOptions& o) {
-  if (!(o.relative_depth_noise > 0.0 && std::isfinite(o.relative_depth_noise))) {
-    throw InputError("scale_estimation.relative_depth_noise must be finite and > 0");
-  }
-  if (!(o.relative_lateral_noise > 0.0 && std::isfinite(o.relative_lateral_noise))) {
-    throw InputError("scale_estimation.relative_lateral_noise must be finite and > 0");
-  }
-  if (!(o.gating_chi2 > 0.0)) throw InputError("scale_estimation.gating_chi2 must be > 0");
-  if (o.min_inliers < 2) throw InputError("scale_estimation.min_inliers must be >= 2");
-  if (!(o.min_inlier_ratio >= 0.0 && o.min_inlier_ratio <= 1.0)) {
-    throw InputError("scale_estimation.min_inlier_ratio must be in [0, 1]");
-  }
-  if (!(o.max_relative_stddev > 0.0)) throw InputError("scale_estimation.max_relative_stddev must be > 0");
-  if (o.passes < 1) throw InputError("scale_estimation.passes must be >= 1");
-  if (!(o.prior_relative_stddev > 0.0 && std::isfinite(o.prior_relative_stddev))) {
-    throw InputError("scale_estimation.prior_relative_stddev must be finite and > 0");
-  }
+  checkRanges(paramSchema<ScaleEstimationOptions>(), o);
 }
 
 ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,

@@ -423,12 +423,21 @@ Cloud readCloud(const std::string& path, const InputLimits& limits) {
   return readCsv(path, limits);
 }
 
+template <>
+const ParamSchema<InputLimits>& paramSchema<InputLimits>() {
+  using O = InputLimits;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"limits", {
+      {"max_cloud_points", &O::max_cloud_points, R::closed(1, static_cast<double>(kMaxCloudPointsCeiling)), "points",
+       "most points of one input cloud (PCD header, CSV rows)"},
+      {"max_keyframes", &O::max_keyframes, R::atLeast(1), "", "most keyframes of one bundle"},
+      {"max_image_pixels", &O::max_image_pixels, R::atLeast(1), "px", "most camera.width x camera.height"},
+  }};
+  return schema;
+}
+
 void validate(const InputLimits& limits) {
-  if (!(limits.max_cloud_points >= 1 && limits.max_cloud_points <= kMaxCloudPointsCeiling)) {
-    throw InputError("limits.max_cloud_points must be in [1, " + std::to_string(kMaxCloudPointsCeiling) + "]");
-  }
-  if (!(limits.max_keyframes >= 1)) throw InputError("limits.max_keyframes must be >= 1");
-  if (!(limits.max_image_pixels >= 1)) throw InputError("limits.max_image_pixels must be >= 1");
+  checkRanges(paramSchema<InputLimits>(), limits);
 }
 
 void writePcd(const std::string& path, const Cloud& cloud) {

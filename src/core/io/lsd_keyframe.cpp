@@ -9,25 +9,26 @@
 
 namespace pcr_pro {
 
-namespace {
-
-void require(bool ok, const std::string& key, const std::string& what, double value) {
-  if (ok) return;
-  std::ostringstream s;
-  s << "lsd." << key << ": " << what << ", got " << value;
-  throw InputError(s.str());
+template <>
+const ParamSchema<LsdFilterOptions>& paramSchema<LsdFilterOptions>() {
+  using O = LsdFilterOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"lsd", {
+      {"scaled_depth_var_th", &O::scaled_depth_var_th, R::above(0), "keyframe depth units^2",
+       "keep an LSD point when idepth_var x depth^4 <= this (LSD viewer scaledDepthVarTH)"},
+      {"abs_depth_var_th", &O::abs_depth_var_th, R::above(0), "map units^2",
+       "keep an LSD point when idepth_var x depth^4 x scale^2 <= this (LSD viewer absDepthVarTH)"},
+      {"min_near_support", &O::min_near_support, R::closed(0, 9), "pixels",
+       "keep an LSD point when this many pixels of its 3x3 neighbourhood (itself included) have an inverse depth "
+       "within sqrt(2 idepth_var) of its own (LSD viewer minNearSupport)"},
+      {"sparsify_factor", &O::sparsify_factor, R::atLeast(1), "-",
+       "keep one LSD point in this many, at random with a fixed seed per keyframe (LSD viewer sparsifyFactor)"},
+  }, ParamMessage::kNode, '.'};
+  return schema;
 }
 
-}  // namespace
-
 void validate(const LsdFilterOptions& o) {
-  require(std::isfinite(o.scaled_depth_var_th) && o.scaled_depth_var_th > 0.0, "scaled_depth_var_th", "must be > 0",
-          o.scaled_depth_var_th);
-  require(std::isfinite(o.abs_depth_var_th) && o.abs_depth_var_th > 0.0, "abs_depth_var_th", "must be > 0",
-          o.abs_depth_var_th);
-  require(o.min_near_support >= 0 && o.min_near_support <= 9, "min_near_support", "must be in [0, 9]",
-          o.min_near_support);
-  require(o.sparsify_factor >= 1, "sparsify_factor", "must be >= 1", o.sparsify_factor);
+  checkRanges(paramSchema<LsdFilterOptions>(), o);
 }
 
 LsdPoints extractPoints(const LsdKeyframe& kf, const LsdFilterOptions& o) {

@@ -12,14 +12,21 @@
 
 namespace pcr_pro {
 
+template <>
+const ParamSchema<StoreLimits>& paramSchema<StoreLimits>() {
+  using O = StoreLimits;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"", {
+      {"max_keyframes_per_agent", &O::max_keyframes, R::atLeast(1), "keyframes",
+       "most keyframes kept per agent; beyond it the keyframe received longest ago is dropped"},
+      {"max_cloud_points_per_agent", &O::max_cloud_points, R::closed(1000, static_cast<double>(kMaxCloudPointsCeiling)),
+       "points", "most map points per agent; a larger map cloud is voxelised with the smallest leaf that fits"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
 void validate(const StoreLimits& l) {
-  if (l.max_keyframes < 1) {
-    throw InputError("max_keyframes_per_agent: must be >= 1, got " + std::to_string(l.max_keyframes));
-  }
-  if (l.max_cloud_points < 1000 || l.max_cloud_points > kMaxCloudPointsCeiling) {
-    throw InputError("max_cloud_points_per_agent: must be in [1000, " + std::to_string(kMaxCloudPointsCeiling) +
-                     "], got " + std::to_string(l.max_cloud_points));
-  }
+  checkRanges(paramSchema<StoreLimits>(), l);
 }
 
 Cloud capCloud(const Cloud& cloud, std::int64_t max_points, CloudCap* info) {

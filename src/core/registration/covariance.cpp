@@ -197,16 +197,32 @@ bool parseCovarianceModel(const std::string& name, CovarianceModel* model) {
   return false;
 }
 
+template <>
+const ParamSchema<CovarianceOptions>& paramSchema<CovarianceOptions>() {
+  using O = CovarianceOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"covariance", {
+      {"model",
+       TextParam<O>{+[](const O& o) { return std::string(covarianceModelName(o.model)); },
+                    +[](O* o, const std::string& s) { return parseCovarianceModel(s, &o->model); },
+                    "closed_form, calibrated or blocks"},
+       R::any(), "",
+       "closed_form: Censi's closed form; calibrated: closed form x max(1, kappa) from re-registered halves; blocks: "
+       "closed form covering the spread between spatial blocks of the correspondences"},
+      {"calibration_splits", &O::calibration_splits, R::atLeast(1), "", "random half splits averaged for kappa (calibrated)"},
+      {"calibration_max_points", &O::calibration_max_points, R::atLeast(100).orZero(), "points",
+       "matches re-registered for kappa (calibrated); 0 = all"},
+      {"sensor_noise_stddev", &O::sensor_noise_stddev, R::atLeast(0), "target units",
+       "per-coordinate point noise; 0 = estimated from the residuals"},
+      {"degeneracy_condition_threshold", &O::degeneracy_condition_threshold, R::above(1), "-",
+       "condition number above which a direction is unobservable"},
+      {"normal_neighbors", &O::normal_neighbors, R::atLeast(3), "", "neighbours for the normals of matched points"},
+  }};
+  return schema;
+}
+
 void validate(const CovarianceOptions& o) {
-  if (!(o.sensor_noise_stddev >= 0.0) || !std::isfinite(o.sensor_noise_stddev)) {
-    throw InputError("covariance.sensor_noise_stddev must be >= 0");
-  }
-  if (!(o.degeneracy_condition_threshold > 1.0)) throw InputError("covariance.degeneracy_condition_threshold must be > 1");
-  if (o.normal_neighbors < 3) throw InputError("covariance.normal_neighbors must be >= 3");
-  if (o.calibration_splits < 1) throw InputError("covariance.calibration_splits must be >= 1");
-  if (o.calibration_max_points < 0 || (o.calibration_max_points > 0 && o.calibration_max_points < 100)) {
-    throw InputError("covariance.calibration_max_points must be 0 or >= 100");
-  }
+  checkRanges(paramSchema<CovarianceOptions>(), o);
 }
 
 namespace {

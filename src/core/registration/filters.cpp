@@ -32,22 +32,89 @@ const char* filterTypeName(FilterStep::Type type) {
   return "unknown";
 }
 
+template <>
+const ParamSchema<CropOptions>& paramSchema<CropOptions>() {
+  using O = CropOptions;
+  static const ParamSchema<O> schema{"crop", {
+      {"axis",
+       TextParam<O>{+[](const O& o) { return std::string(1, "xyz"[o.axis >= 0 && o.axis <= 2 ? o.axis : 0]); },
+                    +[](O* o, const std::string& s) {
+                      const std::size_t i = std::string("xyz").find(s);
+                      if (s.size() != 1 || i == std::string::npos) return false;
+                      o->axis = static_cast<int>(i);
+                      return true;
+                    },
+                    "x, y or z"},
+       ParamRange::any(), "", "map axis the points are ranked on"},
+      {"keep_fraction", &O::keep_fraction, ParamRange::openClosed(0, 1), "-", "fraction of the points kept"},
+      {"keep",
+       TextParam<O>{+[](const O& o) { return std::string(o.keep_lower ? "lower" : "upper"); },
+                    +[](O* o, const std::string& s) {
+                      if (s != "lower" && s != "upper") return false;
+                      o->keep_lower = s == "lower";
+                      return true;
+                    },
+                    "lower or upper"},
+       ParamRange::any(), "", "which end is kept (PCR-Pro keeps the lower part of outdoor clouds, without the sky)"},
+  }};
+  return schema;
+}
+
+template <>
+const ParamSchema<VoxelGridOptions>& paramSchema<VoxelGridOptions>() {
+  static const ParamSchema<VoxelGridOptions> schema{"voxel_grid", {
+      {"leaf_size", &VoxelGridOptions::leaf_size, ParamRange::atLeast(0), "target units", "voxel edge; 0 = off"},
+  }};
+  return schema;
+}
+
+template <>
+const ParamSchema<OutlierRemovalOptions>& paramSchema<OutlierRemovalOptions>() {
+  using O = OutlierRemovalOptions;
+  static const ParamSchema<O> schema{"outlier_removal", {
+      {"mean_k", &O::mean_k, ParamRange::atLeast(1), "", "neighbours per point"},
+      {"stddev_multiplier", &O::stddev_multiplier, ParamRange::atLeast(0), "-",
+       "points whose mean neighbour distance exceeds mean + multiplier x stddev are removed"},
+  }};
+  return schema;
+}
+
+template <>
+const ParamSchema<RandomSamplingOptions>& paramSchema<RandomSamplingOptions>() {
+  using O = RandomSamplingOptions;
+  static const ParamSchema<O> schema{"random_sampling", {
+      {"keep_ratio", &O::keep_ratio, ParamRange::openClosed(0, 1), "-", "fraction of the points kept"},
+      {"seed", &O::seed, ParamRange::any(), "", "random seed"},
+  }};
+  return schema;
+}
+
+template <>
+const ParamSchema<MaxPointsOptions>& paramSchema<MaxPointsOptions>() {
+  using O = MaxPointsOptions;
+  static const ParamSchema<O> schema{"max_points", {
+      {"max_points", &O::max_points, ParamRange::atLeast(0), "points",
+       "cap by uniform random subsampling (scale-free, unlike voxel_grid); 0 = off"},
+      {"seed", &O::seed, ParamRange::any(), "", "random seed"},
+  }};
+  return schema;
+}
+
 void validate(const CropOptions& o) {
   if (o.axis < 0 || o.axis > 2) throw InputError("crop.axis must be 0 (x), 1 (y) or 2 (z)");
-  if (!(o.keep_fraction > 0.0 && o.keep_fraction <= 1.0)) throw InputError("crop.keep_fraction must be in (0, 1]");
+  checkRanges(paramSchema<CropOptions>(), o);
 }
 void validate(const VoxelGridOptions& o) {
-  if (!(o.leaf_size >= 0.0) || !std::isfinite(o.leaf_size)) throw InputError("voxel_grid.leaf_size must be >= 0");
+  checkRanges(paramSchema<VoxelGridOptions>(), o);
 }
 void validate(const OutlierRemovalOptions& o) {
-  if (o.mean_k < 1) throw InputError("outlier_removal.mean_k must be >= 1");
-  if (!(o.stddev_multiplier >= 0.0)) throw InputError("outlier_removal.stddev_multiplier must be >= 0");
+  checkRanges(paramSchema<OutlierRemovalOptions>(), o);
 }
 void validate(const RandomSamplingOptions& o) {
-  if (!(o.keep_ratio > 0.0 && o.keep_ratio <= 1.0)) throw InputError("random_sampling.keep_ratio must be in (0, 1]");
+  checkRanges(paramSchema<RandomSamplingOptions>(), o);
 }
 void validate(const MaxPointsOptions& o) {
-  if (o.max_points < 0) throw InputError("max_points.max_points must be >= 0");
+  checkRanges(paramSchema<MaxPointsOptions>(), o);
 }
 void validate(const FilterChainOptions& o) {
   for (const FilterStep& s : o.steps) {

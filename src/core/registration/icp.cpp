@@ -368,39 +368,65 @@ bool parseErrorMetric(const std::string& name, ErrorMetric* metric) {
   return false;
 }
 
+template <>
+const ParamSchema<IcpOptions>& paramSchema<IcpOptions>() {
+  using O = IcpOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"icp", {
+      {"sampling.max_source_points", &O::max_source_points, R::atLeast(0), "points",
+       "source randomly subsampled to at most this many points; 0 = all"},
+      {"sampling.coarse_source_points", &O::coarse_source_points, R::atLeast(0), "points",
+       "coarse-to-fine: iterate first on this many source points, then 4x as many, ... (10x looser stop check), then "
+       "on the whole sample; 0 = one level"},
+      {"matcher.normal_neighbors", &O::normal_neighbors, R::atLeast(3), "", "neighbours for the target normals"},
+      {"outlier_rejection.max_correspondence_distance", &O::max_correspondence_distance, R::atLeast(0), "target units",
+       "pairs farther apart are rejected; 0 = no fixed limit"},
+      {"outlier_rejection.reciprocal", &O::reciprocal, R::any(), "",
+       "keep source i -> target j only when i is about as close to j as j's nearest source point (drops points "
+       "beyond the other cloud's border)"},
+      {"outlier_rejection.symmetric", &O::symmetric, R::any(), "",
+       "match target samples to the source too, so that the border pulls of a partial overlap cancel"},
+      {"outlier_rejection.reciprocal_tolerance", &O::reciprocal_tolerance, R::atLeast(0), "point spacings",
+       "slack of the reciprocal check"},
+      {"outlier_rejection.adaptive_distance_factor", &O::adaptive_distance_factor, R::atLeast(0),
+       "robust distance scales", "reject pairs farther than this many robust distance scales; 0 = off"},
+      {"outlier_rejection.trim_ratio", &O::trim_ratio, R::openClosed(0, 1), "-",
+       "fraction of the closest pairs kept; 1 = no trimming"},
+      {"outlier_rejection.robust_kernel",
+       TextParam<O>{+[](const O& o) { return std::string(robustKernelName(o.robust_kernel)); },
+                    +[](O* o, const std::string& s) { return parseRobustKernel(s, &o->robust_kernel); },
+                    "none or cauchy"},
+       R::any(), "", "IRLS weights from the residuals' robust spread (1.4826 MAD)"},
+      {"outlier_rejection.kernel_width", &O::kernel_width, R::above(0), "robust spreads", "Cauchy kernel width"},
+      {"outlier_rejection.min_correspondences", &O::min_correspondences, R::atLeast(3), "",
+       "fewer pairs fail the registration"},
+      {"error_minimizer.type",
+       TextParam<O>{+[](const O& o) { return std::string(errorMetricName(o.error_metric)); },
+                    +[](O* o, const std::string& s) { return parseErrorMetric(s, &o->error_metric); },
+                    "point_to_point or point_to_plane"},
+       R::any(), "", "error metric"},
+      {"error_minimizer.estimate_scale", &O::estimate_scale, R::any(), "",
+       "estimate a similarity (scale) too; pcr_pro_icp --estimate-scale sets it"},
+      {"error_minimizer.max_scale_step", &O::max_scale_step, R::open(0, 1), "-",
+       "largest relative scale change per iteration"},
+      {"error_minimizer.min_scale_ratio", &O::min_scale_ratio, R::openClosed(0, 1), "-",
+       "scale kept >= this times the initial scale"},
+      {"error_minimizer.max_scale_ratio", &O::max_scale_ratio, R::atLeast(1), "-",
+       "scale kept <= this times the initial scale"},
+      {"error_minimizer.extrapolation", &O::extrapolation, R::any(), "",
+       "when successive steps point the same way and shrink, jump ahead by the rest of their geometric series "
+       "(Besl & McKay's acceleration)"},
+      {"stop.max_iterations", &O::max_iterations, R::atLeast(1), "", "counter check"},
+      {"stop.min_relative_translation_change", &O::min_relative_translation_change, R::atLeast(0),
+       "target RMS radius", "differential check"},
+      {"stop.min_rotation_change", &O::min_rotation_change, R::atLeast(0), "rad", "differential check"},
+      {"stop.min_scale_change", &O::min_scale_change, R::atLeast(0), "-", "differential check (relative)"},
+  }};
+  return schema;
+}
+
 void validate(const IcpOptions& o) {
-  if (o.max_source_points < 0) throw InputError("icp.sampling.max_source_points must be >= 0");
-  if (o.coarse_source_points < 0) throw InputError("icp.sampling.coarse_source_points must be >= 0");
-  if (o.normal_neighbors < 3) throw InputError("icp.matcher.normal_neighbors must be >= 3");
-  if (!(o.max_correspondence_distance >= 0.0)) {
-    throw InputError("icp.outlier_rejection.max_correspondence_distance must be >= 0");
-  }
-  if (!(o.trim_ratio > 0.0 && o.trim_ratio <= 1.0)) throw InputError("icp.outlier_rejection.trim_ratio must be in (0, 1]");
-  if (!(o.reciprocal_tolerance >= 0.0) || !std::isfinite(o.reciprocal_tolerance)) {
-    throw InputError("icp.outlier_rejection.reciprocal_tolerance must be >= 0");
-  }
-  if (!(o.adaptive_distance_factor >= 0.0) || !std::isfinite(o.adaptive_distance_factor)) {
-    throw InputError("icp.outlier_rejection.adaptive_distance_factor must be >= 0");
-  }
-  if (!(o.kernel_width > 0.0) || !std::isfinite(o.kernel_width)) {
-    throw InputError("icp.outlier_rejection.kernel_width must be > 0");
-  }
-  if (!(o.max_scale_step > 0.0 && o.max_scale_step < 1.0)) {
-    throw InputError("icp.error_minimizer.max_scale_step must be in (0, 1)");
-  }
-  if (!(o.min_scale_ratio > 0.0 && o.min_scale_ratio <= 1.0)) {
-    throw InputError("icp.error_minimizer.min_scale_ratio must be in (0, 1]");
-  }
-  if (!(o.max_scale_ratio >= 1.0 && std::isfinite(o.max_scale_ratio))) {
-    throw InputError("icp.error_minimizer.max_scale_ratio must be >= 1");
-  }
-  if (o.max_iterations < 1) throw InputError("icp.stop.max_iterations must be >= 1");
-  if (!(o.min_relative_translation_change >= 0.0)) {
-    throw InputError("icp.stop.min_relative_translation_change must be >= 0");
-  }
-  if (!(o.min_rotation_change >= 0.0)) throw InputError("icp.stop.min_rotation_change must be >= 0");
-  if (!(o.min_scale_change >= 0.0)) throw InputError("icp.stop.min_scale_change must be >= 0");
-  if (o.min_correspondences < 3) throw InputError("icp.outlier_rejection.min_correspondences must be >= 3");
+  checkRanges(paramSchema<IcpOptions>(), o);
 }
 
 Sim3 umeyama(const Cloud& src, const Cloud& dst, bool with_scale) {

@@ -23,6 +23,21 @@ double quantileRange(std::vector<double>* values, double trim) {
 
 }  // namespace
 
+template <>
+const ParamSchema<ScaleDetectionOptions>& paramSchema<ScaleDetectionOptions>() {
+  using O = ScaleDetectionOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"scale_detection", {
+      {"trim_fraction", &O::trim_fraction, R::closed(0, 0.45), "-",
+       "fraction of the points trimmed at each end of every principal axis"},
+      {"ratio_threshold", &O::ratio_threshold, R::above(1), "-",
+       "target/source size ratio beyond which a scale difference is flagged"},
+  }};
+  return schema;
+}
+
+void validate(const ScaleDetectionOptions& options) { checkRanges(paramSchema<ScaleDetectionOptions>(), options); }
+
 CloudExtent robustExtent(const Cloud& cloud, double trim_fraction) {
   if (cloud.cols() == 0) throw InputError("scale detection: empty cloud");
   if (!(trim_fraction >= 0.0 && trim_fraction <= 0.45)) {

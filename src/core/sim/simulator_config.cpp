@@ -16,34 +16,175 @@ namespace {
 using config_detail::Block;
 
 // Shortest decimal text that reads back to the same double.
-std::string num(double v) {
-  for (int precision : {6, 12, 15, 17}) {
-    std::ostringstream s;
-    s.precision(precision);
-    s << v;
-    if (std::strtod(s.str().c_str(), nullptr) == v) return s.str();
-  }
-  return "nan";
-}
+std::string num(double v) { return schema_detail::numberText(v); }
 
 void range(const std::string& key, double v, double lo, double hi) {
   if (!(v >= lo && v <= hi)) throw InputError(key + ": must be in [" + num(lo) + ", " + num(hi) + "], got " + num(v));
 }
 
+}  // namespace
+
+// The simulator's schemas stay private to this file: nothing else binds or prints them. The ranges
+// that depend on other values (camera_height, target_height) and those of world, render and
+// semi_dense are checked by their validate().
+template <>
+const ParamSchema<SimulatorOptions>& paramSchema<SimulatorOptions>() {
+  using O = SimulatorOptions;
+  static const ParamSchema<O> schema{"", {
+      {"seed", &O::seed, ParamRange::any(), "", "seed of every random draw of the simulation"},
+      {"agents", &O::agents, ParamRange::closed(1, 26), "", "number of agents"},
+      {"min_overlap", &O::min_overlap, ParamRange::closed(0, 1), "-",
+       "pairs whose overlap is below this count as not overlapping in the truth"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<PinholeCamera>& paramSchema<PinholeCamera>() {
+  using O = PinholeCamera;
+  static const ParamSchema<O> schema{"camera", {
+      {"fx", &O::fx, ParamRange::any(), "px", "focal length along x"},
+      {"fy", &O::fy, ParamRange::any(), "px", "focal length along y"},
+      {"cx", &O::cx, ParamRange::any(), "px", "principal point x"},
+      {"cy", &O::cy, ParamRange::any(), "px", "principal point y"},
+      {"width", &O::width, ParamRange::any(), "px", "image width"},
+      {"height", &O::height, ParamRange::any(), "px", "image height"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<WorldOptions>& paramSchema<WorldOptions>() {
+  using O = WorldOptions;
+  static const ParamSchema<O> schema{"world", {
+      {"room_length", &O::room_length, ParamRange::any(), "m", "interior extent along x"},
+      {"room_width", &O::room_width, ParamRange::any(), "m", "interior extent along y"},
+      {"room_height", &O::room_height, ParamRange::any(), "m", "interior height"},
+      {"boxes", &O::boxes, ParamRange::any(), "", "number of furniture-like boxes"},
+      {"max_box_depth", &O::max_box_depth, ParamRange::any(), "m", "depth of a box against a wall"},
+      {"max_wall_box_height", &O::max_wall_box_height, ParamRange::any(), "m", "height of a box against a wall"},
+      {"max_free_box_height", &O::max_free_box_height, ParamRange::any(), "m", "height of a free-standing box"},
+      {"free_box_wall_distance", &O::free_box_wall_distance, ParamRange::any(), "m",
+       "smallest distance of a free-standing box from the walls"},
+      {"ambient", &O::ambient, ParamRange::any(), "-", "ambient share of the lighting"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<TextureOptions>& paramSchema<TextureOptions>() {
+  using O = TextureOptions;
+  static const ParamSchema<O> schema{"world.texture", {
+      {"texel", &O::texel, ParamRange::any(), "m", "texel size"},
+      {"min_shape_size", &O::min_shape_size, ParamRange::any(), "m", "smallest shape drawn"},
+      {"max_shape_size", &O::max_shape_size, ParamRange::any(), "m", "largest shape drawn"},
+      {"coverage", &O::coverage, ParamRange::any(), "-", "fraction of a face the largest shapes cover"},
+      {"detail_decay", &O::detail_decay, ParamRange::any(), "-", "coverage ratio of one size octave to the next"},
+      {"blur", &O::blur, ParamRange::any(), "texels", "Gaussian blur of the drawn texture"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<RenderOptions>& paramSchema<RenderOptions>() {
+  using O = RenderOptions;
+  static const ParamSchema<O> schema{"render", {
+      {"supersampling", &O::supersampling, ParamRange::any(), "", "samples per pixel side"},
+      {"image_noise", &O::image_noise, ParamRange::any(), "grey levels", "Gaussian noise of every pixel"},
+      {"near", &O::near, ParamRange::any(), "m", "surfaces closer to the camera are not drawn"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<TrajectoryOptions>& paramSchema<TrajectoryOptions>() {
+  using O = TrajectoryOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"trajectory", {
+      {"azimuth_span_deg", &O::azimuth_span_deg, R::closed(1, 360), "deg", "azimuth range an agent sweeps"},
+      {"distance", &O::distance, R::closed(0.5, 20), "m", "camera to looked-at wall point"},
+      {"camera_height", &O::camera_height, R::any(), "m", "camera height, clear of floor and ceiling"},
+      {"target_height", &O::target_height, R::any(), "m", "height of the looked-at point, in the room"},
+      {"height_wobble", &O::height_wobble, R::closed(0, 2), "m", "amplitude of the camera height variation"},
+      {"yaw_wobble_deg", &O::yaw_wobble_deg, R::closed(0, 45), "deg", "amplitude of the yaw variation"},
+      {"pitch_wobble_deg", &O::pitch_wobble_deg, R::closed(0, 45), "deg", "amplitude of the pitch variation"},
+      {"roll_wobble_deg", &O::roll_wobble_deg, R::closed(0, 45), "deg", "amplitude of the roll variation"},
+      {"keyframe_distance", &O::keyframe_distance, R::closed(1e-3, 100), "m", "a new keyframe after this much motion"},
+      {"keyframe_angle_deg", &O::keyframe_angle_deg, R::closed(0.1, 180), "deg", "... or this much rotation"},
+      {"max_keyframes", &O::max_keyframes, R::closed(2, 1000), "", "keyframes per agent at most"},
+      {"clearance", &O::clearance, R::closed(0, 2), "m", "smallest distance of a camera from walls and boxes"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<LayoutOptions>& paramSchema<LayoutOptions>() {
+  using O = LayoutOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"layout", {
+      {"overlap", &O::overlap, R::closed(0, 1), "-", "overlap of agent_b with agent_a"},
+      {"view_angle_difference_deg", &O::view_angle_difference_deg, R::closed(0, 120), "deg",
+       "view-angle difference of agent_b to agent_a about the vertical"},
+      {"first_azimuth_deg", &O::first_azimuth_deg, R::closed(-720, 720), "deg", "azimuth where agent_a starts"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<DriftOptions>& paramSchema<DriftOptions>() {
+  using O = DriftOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"drift", {
+      {"scale_drift", &O::scale_drift, R::closed(-0.5, 0.5), "-", "relative scale change from the first to the last keyframe"},
+      {"bend_deg", &O::bend_deg, R::closed(-45, 45), "deg", "rotation drift about the vertical over the path"},
+      {"pose_noise_rotation_deg", &O::pose_noise_rotation_deg, R::closed(0, 30), "deg", "per-keyframe rotation jitter"},
+      {"pose_noise_translation", &O::pose_noise_translation, R::closed(0, 10), "m", "per-keyframe translation jitter"},
+      {"pose_noise_scale", &O::pose_noise_scale, R::closed(0, 0.5), "-", "per-keyframe relative scale jitter"},
+      {"loop_closure", &O::loop_closure, R::closed(0, 1), "-", "fraction of the drift a final graph update removes"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<MapOutputOptions>& paramSchema<MapOutputOptions>() {
+  using O = MapOutputOptions;
+  static const ParamSchema<O> schema{"map", {
+      {"cloud_fraction", &O::cloud_fraction, ParamRange::closed(1e-6, 1), "-",
+       "fraction of each keyframe's semi-dense points that go into the map cloud"},
+      {"depth_images",
+       TextParam<O>{+[](const O& o) { return o.depth_images; },
+                    +[](O* o, const std::string& s) {
+                      o->depth_images = s;
+                      return s == "dense" || s == "semi_dense" || s == "none";
+                    },
+                    "dense, semi_dense or none"},
+       ParamRange::any(), "", "depth images of the bundles and keyframes"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<SemiDenseOptions>& paramSchema<SemiDenseOptions>() {
+  using O = SemiDenseOptions;
+  static const ParamSchema<O> schema{"map.semi_dense", {
+      {"min_gradient", &O::min_gradient, ParamRange::any(), "grey levels / px", "a pixel with less gradient is left out"},
+      {"idepth_noise", &O::idepth_noise, ParamRange::any(), "-", "inverse-depth noise at reference_gradient"},
+      {"reference_gradient", &O::reference_gradient, ParamRange::any(), "grey levels / px", "gradient of idepth_noise"},
+      {"outlier_fraction", &O::outlier_fraction, ParamRange::any(), "-", "fraction of wrong inverse depths"},
+      {"subsample", &O::subsample, ParamRange::any(), "", "keep one gradient pixel in this many"},
+      {"noise_correlation", &O::noise_correlation, ParamRange::any(), "px", "spatial correlation of the noise"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+namespace {
+
+// The ranges of the trajectory that depend on the world (the others are the schema's).
 void validateTrajectory(const TrajectoryOptions& t, const WorldOptions& w) {
-  range("trajectory.azimuth_span_deg", t.azimuth_span_deg, 1.0, 360.0);
-  range("trajectory.distance", t.distance, 0.5, 20.0);
-  range("trajectory.clearance", t.clearance, 0.0, 2.0);
-  range("trajectory.height_wobble", t.height_wobble, 0.0, 2.0);
+  checkRanges(paramSchema<TrajectoryOptions>(), t);
   range("trajectory.camera_height", t.camera_height, t.clearance + t.height_wobble,
         w.room_height - t.clearance - t.height_wobble);
   range("trajectory.target_height", t.target_height, 0.0, w.room_height);
-  range("trajectory.yaw_wobble_deg", t.yaw_wobble_deg, 0.0, 45.0);
-  range("trajectory.pitch_wobble_deg", t.pitch_wobble_deg, 0.0, 45.0);
-  range("trajectory.roll_wobble_deg", t.roll_wobble_deg, 0.0, 45.0);
-  range("trajectory.keyframe_distance", t.keyframe_distance, 1e-3, 100.0);
-  range("trajectory.keyframe_angle_deg", t.keyframe_angle_deg, 0.1, 180.0);
-  range("trajectory.max_keyframes", t.max_keyframes, 2, 1000);
 }
 
 void validateDrift(const std::string& prefix, double scale_drift, double bend_deg) {
@@ -67,21 +208,6 @@ void validateAgent(const AgentOptions& a, std::size_t i) {
   validateDrift(f, a.scale_drift.value_or(0.0), a.bend_deg.value_or(0.0));
 }
 
-// Duplicate keys are errors (yaml-cpp keeps one of them silently).
-void checkDuplicates(const YAML::Node& node, const std::string& path, const std::string& origin) {
-  if (node.IsMap()) {
-    std::set<std::string> seen;
-    for (const auto& kv : node) {
-      const std::string key = kv.first.as<std::string>();
-      const std::string child = path.empty() ? key : path + "." + key;
-      if (!seen.insert(key).second) throw InputError(origin + ": " + child + ": duplicate key");
-      checkDuplicates(kv.second, child, origin);
-    }
-  } else if (node.IsSequence()) {
-    for (std::size_t i = 0; i < node.size(); ++i) checkDuplicates(node[i], path + "[" + std::to_string(i) + "]", origin);
-  }
-}
-
 void optionalDouble(Block* b, const std::string& key, std::optional<double>* v) {
   if (!b->child(key)) return;  // child() marks the key as known
   double x = 0.0;
@@ -89,76 +215,18 @@ void optionalDouble(Block* b, const std::string& key, std::optional<double>* v) 
   *v = x;
 }
 
-void loadWorld(const YAML::Node& node, const std::string& origin, WorldOptions* w) {
-  Block b(node, "world", origin);
-  b.get("room_length", &w->room_length);
-  b.get("room_width", &w->room_width);
-  b.get("room_height", &w->room_height);
-  b.get("boxes", &w->boxes);
-  b.get("max_box_depth", &w->max_box_depth);
-  b.get("max_wall_box_height", &w->max_wall_box_height);
-  b.get("max_free_box_height", &w->max_free_box_height);
-  b.get("free_box_wall_distance", &w->free_box_wall_distance);
-  b.get("ambient", &w->ambient);
-  Block t(b.child("texture"), "world.texture", origin);
-  t.get("texel", &w->texture.texel);
-  t.get("min_shape_size", &w->texture.min_shape_size);
-  t.get("max_shape_size", &w->texture.max_shape_size);
-  t.get("coverage", &w->texture.coverage);
-  t.get("detail_decay", &w->texture.detail_decay);
-  t.get("blur", &w->texture.blur);
-  t.finish();
+// Binds the block `key` of parent through O's schema; nested(block) binds its sub-blocks.
+template <typename O, typename Nested>
+void bindBlock(Block* parent, const std::string& key, O* o, Nested&& nested) {
+  Block b(parent->child(key), parent->keyPath(key), parent->origin());
+  config_detail::bindParams(paramSchema<O>(), &b, o);
+  nested(&b);
   b.finish();
 }
 
-void loadTrajectory(const YAML::Node& node, const std::string& origin, TrajectoryOptions* t) {
-  Block b(node, "trajectory", origin);
-  b.get("azimuth_span_deg", &t->azimuth_span_deg);
-  b.get("distance", &t->distance);
-  b.get("camera_height", &t->camera_height);
-  b.get("target_height", &t->target_height);
-  b.get("height_wobble", &t->height_wobble);
-  b.get("yaw_wobble_deg", &t->yaw_wobble_deg);
-  b.get("pitch_wobble_deg", &t->pitch_wobble_deg);
-  b.get("roll_wobble_deg", &t->roll_wobble_deg);
-  b.get("keyframe_distance", &t->keyframe_distance);
-  b.get("keyframe_angle_deg", &t->keyframe_angle_deg);
-  b.get("max_keyframes", &t->max_keyframes);
-  b.get("clearance", &t->clearance);
-  b.finish();
-}
-
-void loadMapBlocks(Block* top, const std::string& origin, SimulatorOptions* o) {
-  Block r(top->child("render"), "render", origin);
-  r.get("supersampling", &o->render.supersampling);
-  r.get("image_noise", &o->render.image_noise);
-  r.get("near", &o->render.near);
-  r.finish();
-  Block l(top->child("layout"), "layout", origin);
-  l.get("overlap", &o->layout.overlap);
-  l.get("view_angle_difference_deg", &o->layout.view_angle_difference_deg);
-  l.get("first_azimuth_deg", &o->layout.first_azimuth_deg);
-  l.finish();
-  Block d(top->child("drift"), "drift", origin);
-  d.get("scale_drift", &o->drift.scale_drift);
-  d.get("bend_deg", &o->drift.bend_deg);
-  d.get("pose_noise_rotation_deg", &o->drift.pose_noise_rotation_deg);
-  d.get("pose_noise_translation", &o->drift.pose_noise_translation);
-  d.get("pose_noise_scale", &o->drift.pose_noise_scale);
-  d.get("loop_closure", &o->drift.loop_closure);
-  d.finish();
-  Block m(top->child("map"), "map", origin);
-  m.get("cloud_fraction", &o->map.cloud_fraction);
-  m.get("depth_images", &o->map.depth_images);
-  Block s(m.child("semi_dense"), "map.semi_dense", origin);
-  s.get("min_gradient", &o->map.semi_dense.min_gradient);
-  s.get("idepth_noise", &o->map.semi_dense.idepth_noise);
-  s.get("reference_gradient", &o->map.semi_dense.reference_gradient);
-  s.get("outlier_fraction", &o->map.semi_dense.outlier_fraction);
-  s.get("subsample", &o->map.semi_dense.subsample);
-  s.get("noise_correlation", &o->map.semi_dense.noise_correlation);
-  s.finish();
-  m.finish();
+template <typename O>
+void bindBlock(Block* parent, const std::string& key, O* o) {
+  bindBlock(parent, key, o, [](Block*) {});
 }
 
 void loadAgents(const YAML::Node& node, const std::string& origin, std::vector<AgentOptions>* agents) {
@@ -186,7 +254,7 @@ void optionalYaml(std::ostringstream& y, const char* key, const std::optional<do
 }  // namespace
 
 void validate(const SimulatorOptions& o) {
-  range("agents", o.agents, 1, 26);
+  checkRanges(paramSchema<SimulatorOptions>(), o);
   if (o.per_agent.size() > static_cast<std::size_t>(o.agents)) {
     throw InputError("per_agent: " + std::to_string(o.per_agent.size()) + " entries for " + std::to_string(o.agents) +
                      " agents");
@@ -208,48 +276,32 @@ void validate(const SimulatorOptions& o) {
   validate(o.world);
   validate(o.render);
   validateTrajectory(o.trajectory, o.world);
-  range("layout.overlap", o.layout.overlap, 0.0, 1.0);
-  range("layout.view_angle_difference_deg", o.layout.view_angle_difference_deg, 0.0, 120.0);
-  range("layout.first_azimuth_deg", o.layout.first_azimuth_deg, -720.0, 720.0);
-  validateDrift("drift.", o.drift.scale_drift, o.drift.bend_deg);
-  range("drift.pose_noise_rotation_deg", o.drift.pose_noise_rotation_deg, 0.0, 30.0);
-  range("drift.pose_noise_translation", o.drift.pose_noise_translation, 0.0, 10.0);
-  range("drift.pose_noise_scale", o.drift.pose_noise_scale, 0.0, 0.5);
-  range("drift.loop_closure", o.drift.loop_closure, 0.0, 1.0);
+  checkRanges(paramSchema<LayoutOptions>(), o.layout);
+  checkRanges(paramSchema<DriftOptions>(), o.drift);
   try {
     validate(o.map.semi_dense);
   } catch (const InputError& e) {
     throw InputError(std::string("map.") + e.what());
   }
-  range("map.cloud_fraction", o.map.cloud_fraction, 1e-6, 1.0);
+  checkRanges(paramSchema<MapOutputOptions>(), o.map);
   if (o.map.depth_images != "dense" && o.map.depth_images != "semi_dense" && o.map.depth_images != "none") {
     throw InputError("map.depth_images: must be dense, semi_dense or none, got '" + o.map.depth_images + "'");
   }
-  range("min_overlap", o.min_overlap, 0.0, 1.0);
 }
 
 SimulatorOptions parseSimulatorConfig(const std::string& text, const std::string& origin) {
-  const YAML::Node root = config_detail::parseYaml(text, origin);
   SimulatorOptions o;
-  if (!root || root.IsNull()) return o;
-  checkDuplicates(root, "", origin);
-  Block top(root, "", origin);
-  top.get("seed", &o.seed);
-  top.get("agents", &o.agents);
-  top.get("min_overlap", &o.min_overlap);
-  Block cam(top.child("camera"), "camera", origin);
-  cam.get("fx", &o.camera.fx);
-  cam.get("fy", &o.camera.fy);
-  cam.get("cx", &o.camera.cx);
-  cam.get("cy", &o.camera.cy);
-  cam.get("width", &o.camera.width);
-  cam.get("height", &o.camera.height);
-  cam.finish();
-  loadWorld(top.child("world"), origin, &o.world);
-  loadTrajectory(top.child("trajectory"), origin, &o.trajectory);
-  loadMapBlocks(&top, origin, &o);
-  loadAgents(top.child("per_agent"), origin, &o.per_agent);
-  top.finish();
+  config_detail::loadTopLevel(text, origin, [&o](Block* top) {
+    config_detail::bindParams(paramSchema<SimulatorOptions>(), top, &o);
+    bindBlock(top, "camera", &o.camera);
+    bindBlock(top, "world", &o.world, [&o](Block* world) { bindBlock(world, "texture", &o.world.texture); });
+    bindBlock(top, "render", &o.render);
+    bindBlock(top, "trajectory", &o.trajectory);
+    bindBlock(top, "layout", &o.layout);
+    bindBlock(top, "drift", &o.drift);
+    bindBlock(top, "map", &o.map, [&o](Block* map) { bindBlock(map, "semi_dense", &o.map.semi_dense); });
+    loadAgents(top->child("per_agent"), top->origin(), &o.per_agent);
+  });
   config_detail::validateIn(o, origin);
   return o;
 }
