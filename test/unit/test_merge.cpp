@@ -17,6 +17,7 @@
 #include "common/sim_worlds.h"
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/registration/filters.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {
@@ -224,6 +225,33 @@ TEST(Merge, UnknownKeyframeAndBadMapsGiveInvalidInput) {
   AgentMap no_kf = b;
   no_kf.keyframes.clear();
   EXPECT_EQ(mergeMaps(no_kf, a, MergeRequest(), MergeOptions()).report.status, Status::kInvalidInput);
+}
+
+// Error rule (pcr_pro.h): what the maps hold is a status (above, and a cloud the filters empty);
+// only invalid options, the caller's own choice, throw.
+TEST(Merge, InvalidOptionsThrowAndAMapTheFiltersEmptyIsAStatus) {
+  const std::string dir = simDemo();
+  const AgentMap a = loadBundle(dir + "/agent_a"), b = loadBundle(dir + "/agent_b");
+  MergeOptions invalid;
+  invalid.merge.min_overlap = 2.0;
+  EXPECT_THROW(MergePipeline{invalid}, InputError);
+  EXPECT_THROW(mergeMaps(b, a, MergeRequest(), invalid), InputError);
+
+  // Each point kept with probability 1e-9: the chain empties the map clouds (checked first).
+  MergeOptions sparse;
+  FilterStep step;
+  step.type = FilterStep::Type::kRandomSampling;
+  step.random_sampling.keep_ratio = 1e-9;
+  sparse.registration.filters.steps.push_back(step);
+  ASSERT_EQ(applyFilterChain(b.cloud, sparse.registration.filters).cols(), 0);
+  MergeResult r;
+  ASSERT_NO_THROW(r = mergeMaps(b, a, MergeRequest(), sparse));
+  EXPECT_EQ(r.report.status, Status::kInvalidInput) << r.report.message;
+  EXPECT_FALSE(r.report.transform);
+  AgentMap empty = b;
+  empty.cloud.resize(3, 0);
+  ASSERT_NO_THROW(r = mergeMaps(empty, a, MergeRequest(), MergeOptions()));
+  EXPECT_NE(r.report.message.find("empty cloud"), std::string::npos) << r.report.message;
 }
 
 TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
