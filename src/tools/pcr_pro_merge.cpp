@@ -72,12 +72,7 @@ void writePoseGraph(const pcr_pro::tools::Arguments& args, const pcr_pro::MergeR
 
 int run(int argc, char** argv) {
   using namespace pcr_pro;
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-  }
+  if (tools::printedHelp(argc, argv, kUsage)) return 0;
   const tools::Arguments args(
       argc, argv, {"--source", "--target", "--config", "--output", "--source-keyframe", "--target-keyframe", "--seed",
                    "--truth", "--g2o", "--tum"},

@@ -40,14 +40,8 @@ AgentMap rescaled(const AgentMap& map, double factor) {
   return out;
 }
 
-struct Errors {
-  double rotation_deg, scale_rel, translation;
-};
-
-Errors errors(const Sim3& est, const Sim3& truth) {
-  return {test::deg(rotationDistance(est.rotation(), truth.rotation())), std::abs(est.scale() / truth.scale() - 1.0),
-          (est.translation() - truth.translation()).norm()};
-}
+using test::Errors;
+using test::errors;
 
 class MergeScaleRatios : public ::testing::TestWithParam<std::tuple<std::string, double>> {};
 
