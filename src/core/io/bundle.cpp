@@ -352,6 +352,104 @@ void checkIntrinsics(const FieldReader& reader, const Fields& cam, const Pinhole
   }
 }
 
+PinholeCamera parseCamera(const FieldReader& reader, const Fields& top, const InputLimits& limits) {
+  const Fields cam = reader.fields(reader.require(top, "camera"), "camera", {"fx", "fy", "cx", "cy", "width", "height"});
+  PinholeCamera camera;
+  camera.fx = reader.positive(reader.require(cam, "fx"), "camera.fx");
+  camera.fy = reader.positive(reader.require(cam, "fy"), "camera.fy");
+  camera.cx = reader.number(reader.require(cam, "cx"), "camera.cx");
+  camera.cy = reader.number(reader.require(cam, "cy"), "camera.cy");
+  camera.width = reader.positiveInt(reader.require(cam, "width"), "camera.width");
+  camera.height = reader.positiveInt(reader.require(cam, "height"), "camera.height");
+  checkIntrinsics(reader, cam, camera);
+  const long long pixels = static_cast<long long>(camera.width) * camera.height;
+  if (pixels > limits.max_image_pixels) {
+    reader.fail("camera.width", cam.node,
+                "camera.width x camera.height = " + std::to_string(pixels) +
+                    " px, more than limits.max_image_pixels = " + std::to_string(limits.max_image_pixels));
+  }
+  return camera;
+}
+
+/// keyframes[i] of bundle.yaml (`field`); its id must not be in `first_index` (id -> index).
+KeyframeSpec parseKeyframeSpec(const FieldReader& reader, const YAML::Node& node, const std::string& field,
+                               std::size_t index, std::map<long long, std::size_t>* first_index) {
+  const Fields kf = reader.fields(node, field, {"id", "image", "pose", "depth", "depth_scale"});
+  KeyframeSpec spec;
+  const YAML::Node& id_node = reader.require(kf, "id");
+  const long long id = reader.integer(id_node, child(field, "id"));
+  const auto seen = first_index->find(id);
+  if (seen != first_index->end()) {
+    reader.fail(child(field, "id"), id_node,
+                "duplicate keyframe id " + std::to_string(id) + " (also keyframes[" + std::to_string(seen->second) +
+                    "].id)");
+  }
+  first_index->emplace(id, index);
+  spec.id = static_cast<long>(id);
+  spec.image = reader.text(reader.require(kf, "image"), child(field, "image"));
+
+  const std::string pose_field = child(field, "pose");
+  const Fields pose = reader.fields(reader.require(kf, "pose"), pose_field, {"position", "orientation", "scale"});
+  const Eigen::Vector3d position = reader.vector3(reader.require(pose, "position"), child(pose_field, "position"));
+  const Eigen::Quaterniond q = reader.quaternion(reader.require(pose, "orientation"), child(pose_field, "orientation"));
+  double scale = 1.0;
+  if (const YAML::Node* s = pose.find("scale")) scale = reader.positive(*s, child(pose_field, "scale"));
+  spec.pose = Sim3(scale, q, position);
+
+  const YAML::Node* depth = kf.find("depth");
+  const YAML::Node* depth_scale = kf.find("depth_scale");
+  if (depth_scale != nullptr) spec.depth_scale = reader.positive(*depth_scale, child(field, "depth_scale"));
+  if (depth != nullptr) {
+    spec.depth = reader.text(*depth, child(field, "depth"));
+    if (depth_scale == nullptr) reader.fail(child(field, "depth_scale"), kf.node, "required when depth is given");
+  }
+  return spec;
+}
+
+std::vector<KeyframeSpec> parseKeyframeSpecs(const FieldReader& reader, const Fields& top, const InputLimits& limits) {
+  const YAML::Node& keyframes = reader.require(top, "keyframes");
+  if (!keyframes.IsSequence()) {
+    reader.fail("keyframes", keyframes, "must be a list of keyframes, got " + describe(keyframes));
+  }
+  if (keyframes.size() == 0) reader.fail("keyframes", keyframes, "no keyframes (need at least one)");
+  if (static_cast<std::int64_t>(keyframes.size()) > limits.max_keyframes) {
+    reader.fail("keyframes", keyframes,
+                std::to_string(keyframes.size()) + " keyframes, more than limits.max_keyframes = " +
+                    std::to_string(limits.max_keyframes));
+  }
+  std::vector<KeyframeSpec> specs;
+  std::map<long long, std::size_t> first_index;
+  for (std::size_t i = 0; i < keyframes.size(); ++i) {
+    specs.push_back(parseKeyframeSpec(reader, keyframes[i], element("keyframes", i), i, &first_index));
+  }
+  return specs;
+}
+
+/// The keyframes' image and depth files, read once the whole YAML is known to be valid.
+std::vector<MapKeyframe> readKeyframeFiles(const fs::path& base, const std::string& yaml_path,
+                                           const std::vector<KeyframeSpec>& specs, const PinholeCamera& camera,
+                                           const ImageFileReader& read) {
+  std::vector<MapKeyframe> keyframes;
+  keyframes.reserve(specs.size());
+  for (std::size_t i = 0; i < specs.size(); ++i) {
+    const KeyframeSpec& spec = specs[i];
+    const std::string field = element("keyframes", i);
+    MapKeyframe kf;
+    kf.id = spec.id;
+    kf.pose = spec.pose;
+    try {
+      kf.image = loadGreyImage((base / spec.image).string(), child(field, "image"), camera, read);
+      if (!spec.depth.empty()) {
+        kf.depth = loadDepthImage((base / spec.depth).string(), child(field, "depth"), camera, spec.depth_scale, read);
+      }
+    } catch (const cv::Exception& e) {
+      throw InputError(oneLine(yaml_path + ": " + field + ": image conversion failed: " + e.what(), 400));
+    }
+    keyframes.push_back(std::move(kf));
+  }
+  return keyframes;
+}
+
 AgentMap readBundle(const std::string& dir, const InputLimits& limits, std::vector<std::string>* warnings,
                     const ImageFileReader& read) {
   std::error_code ec;
@@ -371,71 +469,10 @@ AgentMap readBundle(const std::string& dir, const InputLimits& limits, std::vect
   try {
     if (root.IsNull()) reader.fail("", root, "empty document (expected a map with cloud, camera, keyframes)");
     const Fields top = reader.fields(root, "", {"frame_id", "cloud", "camera", "keyframes"});
-
     if (const YAML::Node* frame = top.find("frame_id")) map.frame_id = reader.text(*frame, "frame_id");
     cloud_file = reader.text(reader.require(top, "cloud"), "cloud");
-
-    const Fields cam =
-        reader.fields(reader.require(top, "camera"), "camera", {"fx", "fy", "cx", "cy", "width", "height"});
-    map.camera.fx = reader.positive(reader.require(cam, "fx"), "camera.fx");
-    map.camera.fy = reader.positive(reader.require(cam, "fy"), "camera.fy");
-    map.camera.cx = reader.number(reader.require(cam, "cx"), "camera.cx");
-    map.camera.cy = reader.number(reader.require(cam, "cy"), "camera.cy");
-    map.camera.width = reader.positiveInt(reader.require(cam, "width"), "camera.width");
-    map.camera.height = reader.positiveInt(reader.require(cam, "height"), "camera.height");
-    checkIntrinsics(reader, cam, map.camera);
-    const long long pixels = static_cast<long long>(map.camera.width) * map.camera.height;
-    if (pixels > limits.max_image_pixels) {
-      reader.fail("camera.width", cam.node,
-                  "camera.width x camera.height = " + std::to_string(pixels) +
-                      " px, more than limits.max_image_pixels = " + std::to_string(limits.max_image_pixels));
-    }
-
-    const YAML::Node& keyframes = reader.require(top, "keyframes");
-    if (!keyframes.IsSequence()) {
-      reader.fail("keyframes", keyframes, "must be a list of keyframes, got " + describe(keyframes));
-    }
-    if (keyframes.size() == 0) reader.fail("keyframes", keyframes, "no keyframes (need at least one)");
-    if (static_cast<std::int64_t>(keyframes.size()) > limits.max_keyframes) {
-      reader.fail("keyframes", keyframes,
-                  std::to_string(keyframes.size()) + " keyframes, more than limits.max_keyframes = " +
-                      std::to_string(limits.max_keyframes));
-    }
-    std::map<long long, std::size_t> first_index;
-    for (std::size_t i = 0; i < keyframes.size(); ++i) {
-      const std::string field = element("keyframes", i);
-      const Fields kf = reader.fields(keyframes[i], field, {"id", "image", "pose", "depth", "depth_scale"});
-      KeyframeSpec spec;
-      const YAML::Node& id_node = reader.require(kf, "id");
-      const long long id = reader.integer(id_node, child(field, "id"));
-      const auto seen = first_index.find(id);
-      if (seen != first_index.end()) {
-        reader.fail(child(field, "id"), id_node,
-                    "duplicate keyframe id " + std::to_string(id) + " (also keyframes[" + std::to_string(seen->second) +
-                        "].id)");
-      }
-      first_index.emplace(id, i);
-      spec.id = static_cast<long>(id);
-      spec.image = reader.text(reader.require(kf, "image"), child(field, "image"));
-
-      const std::string pose_field = child(field, "pose");
-      const Fields pose = reader.fields(reader.require(kf, "pose"), pose_field, {"position", "orientation", "scale"});
-      const Eigen::Vector3d position = reader.vector3(reader.require(pose, "position"), child(pose_field, "position"));
-      const Eigen::Quaterniond q =
-          reader.quaternion(reader.require(pose, "orientation"), child(pose_field, "orientation"));
-      double scale = 1.0;
-      if (const YAML::Node* s = pose.find("scale")) scale = reader.positive(*s, child(pose_field, "scale"));
-      spec.pose = Sim3(scale, q, position);
-
-      const YAML::Node* depth = kf.find("depth");
-      const YAML::Node* depth_scale = kf.find("depth_scale");
-      if (depth_scale != nullptr) spec.depth_scale = reader.positive(*depth_scale, child(field, "depth_scale"));
-      if (depth != nullptr) {
-        spec.depth = reader.text(*depth, child(field, "depth"));
-        if (depth_scale == nullptr) reader.fail(child(field, "depth_scale"), kf.node, "required when depth is given");
-      }
-      specs.push_back(spec);
-    }
+    map.camera = parseCamera(reader, top, limits);
+    specs = parseKeyframeSpecs(reader, top, limits);
   } catch (const YAML::Exception& e) {
     // Safety net: yaml-cpp errors not caught by the checks above still name the file.
     throw InputError(oneLine(yaml_path + ": " + e.what(), 400));
@@ -449,25 +486,7 @@ AgentMap readBundle(const std::string& dir, const InputLimits& limits, std::vect
   } catch (const InputError& e) {
     throw InputError(std::string(e.what()) + " (cloud)");
   }
-
-  map.keyframes.reserve(specs.size());
-  for (std::size_t i = 0; i < specs.size(); ++i) {
-    const KeyframeSpec& spec = specs[i];
-    const std::string field = element("keyframes", i);
-    MapKeyframe kf;
-    kf.id = spec.id;
-    kf.pose = spec.pose;
-    try {
-      kf.image = loadGreyImage((base / spec.image).string(), child(field, "image"), map.camera, read);
-      if (!spec.depth.empty()) {
-        kf.depth =
-            loadDepthImage((base / spec.depth).string(), child(field, "depth"), map.camera, spec.depth_scale, read);
-      }
-    } catch (const cv::Exception& e) {
-      throw InputError(oneLine(yaml_path + ": " + field + ": image conversion failed: " + e.what(), 400));
-    }
-    map.keyframes.push_back(std::move(kf));
-  }
+  map.keyframes = readKeyframeFiles(base, yaml_path, specs, map.camera, read);
   return map;
 }
 
