@@ -15,6 +15,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "common/sim_worlds.h"
+#include "common/cli_run.h"
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/registration/filters.h"
@@ -278,24 +279,9 @@ TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
 
 // --- the pcr_pro_merge command line
 
-struct CliRun {
-  int status = -1;
-  std::string out, err;
-};
+using test::CliRun;
 
-CliRun runMerge(const std::string& args) {
-  namespace fs = std::filesystem;
-  const fs::path tmp = fs::temp_directory_path() / ("pcr_pro_merge_cli_" + std::to_string(::getpid()));
-  fs::create_directories(tmp);
-  const std::string out = (tmp / "out.txt").string(), err = (tmp / "err.txt").string();
-  const int raw = std::system((std::string(PCR_PRO_MERGE_BIN) + " " + args + " >" + out + " 2>" + err).c_str());
-  CliRun r;
-  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
-  std::ifstream o(out), e(err);
-  r.out.assign(std::istreambuf_iterator<char>(o), {});
-  r.err.assign(std::istreambuf_iterator<char>(e), {});
-  return r;
-}
+CliRun runMerge(const std::string& args) { return test::runCli(PCR_PRO_MERGE_BIN, args, "pcr_pro_merge_cli"); }
 
 TEST(MergeCli, MergesWritesOutputsAndRefuses) {
   namespace fs = std::filesystem;
