@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "common/geometry_checks.h"
 #include "pcr_pro/registration/filters.h"
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/geometry/sim3.h"
@@ -66,20 +67,9 @@ inline double runForNumber(const std::string& command) {
   return pclose(p) == 0 ? v : -1.0;
 }
 
-/// Errors of an estimated S_target_source against the truth.
-struct Errors {
-  double rotation_deg = 0.0;
-  double translation = 0.0;  ///< [target units]
-  double scale_rel = 0.0;    ///< |s / s_true - 1| [-]
-};
-
-inline Errors errors(const Sim3& est, const Sim3& truth) {
-  Errors e;
-  e.rotation_deg = rotationDistance(est.rotation(), truth.rotation()) * 180.0 / M_PI;
-  e.translation = (est.translation() - truth.translation()).norm();
-  e.scale_rel = std::abs(est.scale() / truth.scale() - 1.0);
-  return e;
-}
+/// Errors of an estimated S_target_source against the truth (shared with the tests).
+using test::Errors;
+using test::errors;
 
 /// The success criterion of the issues: rotation < 1°, translation < 1 % of the map extent,
 /// scale < 1 %.

@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "common/data_dir.h"
+#include "common/geometry_checks.h"
 #include "pcr_pro/io/cloud_io.h"
 #include "pcr_pro/registration/cloud_registration.h"
 #include "pcr_pro/registration/scale_detection.h"
@@ -13,23 +14,6 @@
 namespace pcr_pro {
 namespace bench {
 namespace {
-
-// Ground truth 401 -> 400 from carCloudList.csv (4x4 row-major).
-Sim3 carTruth(const std::string& car) {
-  std::ifstream in(car + "/carCloudList.csv");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("car_cloud401.csv", 0) != 0) continue;
-    std::replace(line.begin(), line.end(), ',', ' ');
-    std::istringstream ls(line);
-    std::string name;
-    ls >> name;
-    Eigen::Matrix4d m;
-    for (int i = 0; i < 16; ++i) ls >> m(i / 4, i % 4);
-    return Sim3::fromMatrix(m);
-  }
-  throw std::runtime_error(car + "/carCloudList.csv: no line for car_cloud401.csv");
-}
 
 // Every method on the source expressed in units 1/s (S_target_source then has scale s).
 std::vector<Row> carRuns(const Cloud& source0, const Cloud& target, const Sim3& truth0, double s, double extent) {
@@ -80,7 +64,7 @@ void carScans(Output& out, const std::vector<double>& scales) {
   const std::string car = test::dataPath("libpointmatcher_car");
   const Cloud source0 = readCloud(car + "/car_cloud401.csv");
   const Cloud target = readCloud(car + "/car_cloud400.csv");
-  const Sim3 truth0 = carTruth(car);
+  const Sim3 truth0 = test::carGroundTruth(car + "/carCloudList.csv");
   const double extent = robustExtent(target, 0.05).size;
   std::vector<Row> rows;
   for (double s : scales) {

@@ -6,6 +6,8 @@
 
 #include <random>
 
+#include "common/geometry_checks.h"
+#include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/registration/covariance.h"
 #include "pcr_pro/registration/icp.h"
 #include "suite.h"
@@ -16,40 +18,6 @@ namespace {
 
 const CovarianceModel kModels[3] = {CovarianceModel::kClosedForm, CovarianceModel::kCalibrated,
                                     CovarianceModel::kBlocks};
-
-// A sparse synthetic room (planes, a box, a sphere, a partial wall, and a cluster of
-// non-surface clutter points), `size` across; every call draws a new independent sample.
-Cloud room(int n, double size, std::mt19937& rng) {
-  std::uniform_real_distribution<double> u(-0.5, 0.5);
-  std::uniform_int_distribution<int> pick(0, 5);
-  Cloud c(3, n);
-  for (int i = 0; i < n; ++i) {
-    Eigen::Vector3d p;
-    switch (pick(rng)) {
-      case 0: p << u(rng), u(rng), -0.5; break;
-      case 1: p << -0.5, u(rng), u(rng); break;
-      case 2: p << u(rng), 0.5, u(rng); break;
-      case 3: p << 0.2 + 0.15 * u(rng), -0.2 + 0.15 * u(rng), -0.5 + 0.3 * (u(rng) + 0.5); break;
-      case 4: {
-        const Eigen::Vector3d d(u(rng), u(rng), u(rng));
-        p = Eigen::Vector3d(-0.15, 0.1, -0.25) + 0.18 * d.normalized();
-        break;
-      }
-      default: p << 0.35 * u(rng) - 0.1, -0.45, 0.8 * u(rng); break;
-    }
-    c.col(i) = size * p;
-  }
-  return c;
-}
-
-Vector6d poseError(const Sim3& est, const Sim3& truth) {
-  const Eigen::Matrix3d dr = est.rotation() * truth.rotation().transpose();
-  const Eigen::AngleAxisd aa(dr);
-  Vector6d d;
-  d.head<3>() = est.translation() - (est.scale() / truth.scale()) * dr * truth.translation();
-  d.tail<3>() = aa.angle() * aa.axis();
-  return d;
-}
 
 void consistency(Output& out, const std::vector<std::pair<int, int>>& sizes_trials, std::FILE* headline) {
   std::FILE* csv = out.open("nees.csv");
@@ -80,7 +48,7 @@ void consistency(Output& out, const std::vector<std::pair<int, int>>& sizes_tria
       std::vector<double> ms;
     } acc[3];
     for (int t = 0; t < trials; ++t) {
-      Cloud tg = room(n, size, rng), sw = room(n, size, rng);
+      Cloud tg = test::syntheticScene(n, size, rng), sw = test::syntheticScene(n, size, rng);
       for (int i = 0; i < n; ++i) {
         tg.col(i) += sigma * Eigen::Vector3d(g(rng), g(rng), g(rng));
         sw.col(i) += sigma * Eigen::Vector3d(g(rng), g(rng), g(rng));
@@ -92,7 +60,7 @@ void consistency(Output& out, const std::vector<std::pair<int, int>>& sizes_tria
       const IcpOptions io;
       const IcpResult icp = alignIcp(src, tg, guess, io);
       if (icp.status != Status::kOk) continue;
-      const Vector6d d = poseError(icp.transform, truth);
+      const Vector6d d = poseDifference(icp.transform, truth);
       for (int m = 0; m < 3; ++m) {
         CovarianceOptions co;
         co.model = kModels[m];

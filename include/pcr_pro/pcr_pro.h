@@ -8,6 +8,22 @@
  * - registration/  scale detection, filters, ICP, covariance, the cloud registration
  * - merge/         the merge of two agents' maps and the per-agent store
  * - sim/           the synthetic multi-agent world: scene, renderer, LSD-like semi-dense maps, truth
+ *
+ * @par Error rule (one for every stage)
+ * - A caller's mistake throws: invalid options (each options struct's validate(), InputError
+ *   naming the field), arguments that contradict each other or the API's stated preconditions
+ *   (a k-d tree built for another cloud, a stage object used before it was set up, an empty
+ *   cloud given to a building block such as alignIcp() whose header says it must not be
+ *   empty), and bad files (InputError naming file and field). The caller can always avoid these.
+ * - What the data does returns a Status in the result, with the reason in its message: a map or
+ *   cloud that is empty or becomes empty in the filters, no feature matches, no verified pose,
+ *   no scale, no overlap, an ICP that does not converge, a degenerate geometry. Data come from
+ *   sensors and SLAM systems: a caller cannot rule these out before calling.
+ * - The two entry points follow it: registerClouds() and mergeMaps() / MergePipeline::merge()
+ *   answer INVALID_INPUT for an empty cloud or map (the same status as when the filters empty
+ *   it), and throw only for invalid options (and registerClouds() for a mismatched target_tree).
+ * - Out of memory is std::bad_alloc, as everywhere in C++. The tools turn every exception into
+ *   exit status 2 with one line; the ROS node answers every merge with a status code.
  */
 #pragma once
 

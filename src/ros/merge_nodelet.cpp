@@ -13,14 +13,15 @@ namespace ros_bridge {
 class MergeNodelet : public nodelet::Nodelet {
  private:
   void onInit() override {
-    NodeOptions options;
+    // The constructor validates the merge options again (MergePipeline) and throws InputError
+    // for an invalid one (error rule, pcr_pro.h): reported like a bad parameter.
     try {
-      options = loadNodeOptions(getPrivateNodeHandle());
+      node_ = std::make_unique<MergeNode>(getNodeHandle(), getPrivateNodeHandle(),
+                                          loadNodeOptions(getPrivateNodeHandle()));
     } catch (const InputError& e) {
       NODELET_FATAL("bad configuration, not starting: %s", e.what());
       throw std::runtime_error(std::string("pcr_pro/MergeNodelet: bad configuration: ") + e.what());
     }
-    node_ = std::make_unique<MergeNode>(getNodeHandle(), getPrivateNodeHandle(), options);
   }
 
   std::unique_ptr<MergeNode> node_;

@@ -36,12 +36,7 @@ pcr_pro::Sim3 parseInitial(const std::string& text) {
 
 int run(int argc, char** argv) {
   using namespace pcr_pro;
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-  }
+  if (tools::printedHelp(argc, argv, kUsage)) return 0;
   const tools::Arguments args(argc, argv, {"--source", "--target", "--config", "--initial", "--output", "--seed"},
                               {"--estimate-scale"});
   const std::string source_path = args.required("--source");

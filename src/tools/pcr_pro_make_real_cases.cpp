@@ -44,12 +44,7 @@ void printSummary(const pcr_pro::real_cases::CaseSummary& c) {
 
 int run(int argc, char** argv) {
   using namespace pcr_pro;
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-  }
+  if (tools::printedHelp(argc, argv, kUsage)) return 0;
   const tools::Arguments args(argc, argv, {"--data", "--output"}, {});
   const fs::path data = args.required("--data"), output = args.required("--output");
   const fs::path seven = data / "7scenes_redkitchen", slambook = data / "slambook2_ch5_rgbd";

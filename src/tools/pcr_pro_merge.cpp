@@ -9,6 +9,7 @@
 #include "pcr_pro/io/truth_comparison.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/merge/seed.h"
+#include "image_check.h"
 #include "tool_common.h"
 
 namespace {
@@ -71,12 +72,7 @@ void writePoseGraph(const pcr_pro::tools::Arguments& args, const pcr_pro::MergeR
 
 int run(int argc, char** argv) {
   using namespace pcr_pro;
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-  }
+  if (tools::printedHelp(argc, argv, kUsage)) return 0;
   const tools::Arguments args(
       argc, argv, {"--source", "--target", "--config", "--output", "--source-keyframe", "--target-keyframe", "--seed",
                    "--truth", "--g2o", "--tum"},
@@ -96,8 +92,9 @@ int run(int argc, char** argv) {
   if (truth_file) truth = loadBundleTruth(*truth_file);
 
   std::vector<std::string> warnings;
-  const AgentMap source = loadBundle(source_dir, options.limits, &warnings);
-  const AgentMap target = loadBundle(target_dir, options.limits, &warnings);
+  // The tools' reader: PNG chunk diagnostics and libjpeg's warnings as errors (image_check.h).
+  const AgentMap source = loadBundle(source_dir, options.limits, &warnings, tools::readImageChecked);
+  const AgentMap target = loadBundle(target_dir, options.limits, &warnings, tools::readImageChecked);
   for (const std::string& w : warnings) std::cerr << "pcr_pro_merge: warning: " << w << "\n";
   for (const auto& [id, map, dir] : {std::tuple{request.source_keyframe, &source, source_dir},
                                      std::tuple{request.target_keyframe, &target, target_dir}}) {

@@ -38,6 +38,16 @@ std::string Arguments::required(const std::string& key) const {
   return *v;
 }
 
+bool printedHelp(int argc, char** argv, const char* usage) {
+  for (int i = 1; i < argc; ++i) {
+    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
+      std::cout << usage;
+      return true;
+    }
+  }
+  return false;
+}
+
 std::uint64_t seedOption(const Arguments& args) {
   const auto text = args.value("--seed");
   if (!text) return kDefaultSeed;

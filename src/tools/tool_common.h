@@ -33,6 +33,10 @@ class Arguments {
   std::set<std::string> flags_;
 };
 
+/// @return true, after printing `usage` on stdout, when an argument is --help or -h (the tool
+/// then exits 0 whatever else the command line holds)
+bool printedHelp(int argc, char** argv, const char* usage);
+
 /// Largest seed the tools and the node accept (the node's `~seed` is an XML-RPC int).
 constexpr std::uint64_t kMaxSeed = 2147483647;
 

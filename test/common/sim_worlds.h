@@ -22,6 +22,7 @@
 
 #include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/io/truth_comparison.h"
+#include "common/yaml_sim3.h"
 
 #ifndef PCR_PRO_SIM_DIR
 #error "PCR_PRO_SIM_DIR must be defined by the build (pcr_pro_use_sim_worlds in CMakeLists.txt)"
@@ -46,13 +47,6 @@ struct PairTolerance {
   double scale_percent = 0.0;  ///< of |scale_percent|
 };
 
-inline Sim3 similarityFromYaml(const YAML::Node& n) {
-  const auto q = n["rotation"].as<std::vector<double>>();
-  const auto t = n["translation"].as<std::vector<double>>();
-  return Sim3(n["scale"].as<double>(), Eigen::Quaterniond(q[3], q[0], q[1], q[2]).normalized(),
-              Eigen::Vector3d(t[0], t[1], t[2]));
-}
-
 /**
  * The tolerance of a generated pair, from its truth file. The truth S_target_source is the
  * least-squares similarity over all co-visible points; with drift, the similarity local to each
@@ -69,10 +63,10 @@ inline Sim3 similarityFromYaml(const YAML::Node& n) {
  */
 inline PairTolerance pairTolerance(const std::string& truth_file, double factor = 2.0) {
   const YAML::Node truth = YAML::LoadFile(truth_file);
-  const Sim3 global = similarityFromYaml(truth["S_target_source"]);
+  const Sim3 global = sim3FromYaml(truth["S_target_source"]);
   PairTolerance spread;
   for (const YAML::Node& pair : truth["keyframe_pairs"]) {
-    const Sim3 local = similarityFromYaml(pair["S_target_source"]);
+    const Sim3 local = sim3FromYaml(pair["S_target_source"]);
     const TruthErrors e = compareWithTruth(local, global, std::nullopt, std::nullopt);
     spread.rotation_deg = std::max(spread.rotation_deg, e.rotation_deg);
     spread.translation = std::max(spread.translation, e.translation);

@@ -31,6 +31,8 @@
 #include <sstream>
 #include <thread>
 
+#include "common/diagnostics_watcher.h"
+#include "common/ros_test_main.h"
 #include "common/sim_worlds.h"
 #include "pcr_pro/MergeMaps.h"
 #include "pcr_pro/io/bundle.h"
@@ -84,33 +86,7 @@ double procStatusMb(int pid, const std::string& key) {
 }
 
 // Latest diagnostics values by (task suffix, key).
-class Diagnostics {
- public:
-  explicit Diagnostics(ros::NodeHandle& nh) : sub_(nh.subscribe("/diagnostics", 50, &Diagnostics::on, this)) {}
-  std::string value(const std::string& task, const std::string& key) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    for (const auto& [name, status] : latest_) {
-      if (name.size() < task.size() || name.compare(name.size() - task.size(), task.size(), task) != 0) continue;
-      for (const auto& kv : status.values) {
-        if (kv.key == key) return kv.value;
-      }
-    }
-    return "";
-  }
-  long number(const std::string& task, const std::string& key) {
-    const std::string v = value(task, key);
-    return v.empty() ? -1 : std::stol(v);
-  }
-
- private:
-  void on(const diagnostic_msgs::DiagnosticArray::ConstPtr& msg) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    for (const auto& s : msg->status) latest_[s.name] = s;
-  }
-  std::mutex mutex_;
-  std::map<std::string, diagnostic_msgs::DiagnosticStatus> latest_;
-  ros::Subscriber sub_;
-};
+using Diagnostics = test::DiagnosticsWatcher;
 
 // What one agent streams: good messages cycled with fresh keyframe ids, and invalid ones.
 struct AgentStream {
@@ -475,13 +451,4 @@ TEST(Soak, TwoAgentsStreamWhileMergesAreCalledRepeatedly) {
 }  // namespace ros_bridge
 }  // namespace pcr_pro
 
-int main(int argc, char** argv) {
-  ::testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "merge_node_soak");
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int result = RUN_ALL_TESTS();
-  spinner.stop();
-  ros::shutdown();
-  return result;
-}
+int main(int argc, char** argv) { return pcr_pro::test::runRosTests(argc, argv, "merge_node_soak"); }

@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <map>
 
+#include "common/bag_reading.h"
 #include "common/sim_worlds.h"
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/merge_pipeline.h"
@@ -23,29 +24,8 @@ namespace {
 std::string world(const std::string& file) { return test::simPath("demo/" + file); }
 
 std::map<std::string, AgentStore> readBag(const std::string& file, bool apply_graph = true) {
-  std::map<std::string, AgentStore> stores;
-  rosbag::Bag bag(file, rosbag::bagmode::Read);
-  for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
-    const std::string topic = m.getTopic();
-    const std::string agent = topic.substr(1, topic.find('/', 1) - 1);
-    auto it = stores.emplace(agent, AgentStore(agent + "/map")).first;
-    if (const auto kf = m.instantiate<pcr_pro::Keyframe>()) {
-      const DecodedKeyframe d = keyframeFromMsg(*kf);
-      EXPECT_EQ(d.frame_id, agent + "/map");
-      it->second.setKeyframe(d.keyframe, d.camera);
-    } else if (const auto cloud = m.instantiate<sensor_msgs::PointCloud2>()) {
-      it->second.setCloud(cloudFromMsg(*cloud));
-    } else if (const auto lsd = m.instantiate<lsd_slam_viewer::keyframeMsg>()) {
-      it->second.setLsdKeyframe(lsdKeyframeFromMsg(*lsd));
-    } else if (const auto graph = m.instantiate<lsd_slam_viewer::keyframeGraphMsg>()) {
-      if (apply_graph) {
-        EXPECT_GT(it->second.updateLsdPoses(lsdGraphFromMsg(*graph).poses), 0);
-      }
-    } else {
-      ADD_FAILURE() << "unexpected message on " << topic;
-    }
-  }
-  return stores;
+  if (apply_graph) return test::readAgentBag(file).stores;
+  return test::readAgentBag(file, [](int, int) { return false; }).stores;
 }
 
 // Merges agent_b into agent_a as the node would and measures the result against the truth.

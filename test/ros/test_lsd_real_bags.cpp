@@ -31,6 +31,7 @@
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/ros/msg_conversion.h"
 #include "common/data_dir.h"
+#include "common/yaml_sim3.h"
 
 namespace pcr_pro {
 namespace ros_bridge {
@@ -40,12 +41,7 @@ using Vector7d = Eigen::Matrix<double, 7, 1>;
 
 double deg(double rad) { return rad * 180.0 / M_PI; }
 
-Sim3 sim3(const YAML::Node& n, const char* quaternion_key) {
-  const YAML::Node q = n[quaternion_key], t = n["t"] ? n["t"] : n["translation"];
-  const double s = n["s"] ? n["s"].as<double>() : (n["scale"] ? n["scale"].as<double>() : 1.0);
-  return Sim3(s, Eigen::Quaterniond(q[3].as<double>(), q[0].as<double>(), q[1].as<double>(), q[2].as<double>()),
-              Eigen::Vector3d(t[0].as<double>(), t[1].as<double>(), t[2].as<double>()));
-}
+Sim3 sim3(const YAML::Node& n, const char* quaternion_key) { return test::sim3FromYaml(n, quaternion_key); }
 
 // One agent's bag decoded as merge_node does: keyframes (isKeyframe) into the store, graph
 // messages move them.
@@ -252,12 +248,7 @@ TEST_F(RealLsdSlam, SecondMergeReusesTheFeatures) {
 
 // --- a simulator world with LSD-like semi-dense depth and drift, exact truth
 
-Sim3 simTruth(const YAML::Node& n) {
-  const YAML::Node q = n["rotation"], t = n["translation"];
-  return Sim3(n["scale"].as<double>(),
-              Eigen::Quaterniond(q[3].as<double>(), q[0].as<double>(), q[1].as<double>(), q[2].as<double>()),
-              Eigen::Vector3d(t[0].as<double>(), t[1].as<double>(), t[2].as<double>()));
-}
+Sim3 simTruth(const YAML::Node& n) { return test::sim3FromYaml(n); }
 
 TEST(SimulatedLsdSlam, DriftingMapsMergeToTheAnchorPairsLocalTruth) {
   // The build's drifting world (build/sim/lsd_drift); $PCR_PRO_SIM_LSD_WORLD names another.

@@ -29,6 +29,8 @@
 
 #include "pcr_pro/EdgeHistory.h"
 #include "common/data_dir.h"
+#include "common/diagnostics_watcher.h"
+#include "common/ros_test_main.h"
 #include "common/sim_worlds.h"
 #include "pcr_pro/GetEdges.h"
 #include "pcr_pro/MergeMaps.h"
@@ -83,40 +85,7 @@ std::string idList(const std::vector<long>& ids) {
 }
 std::string agentIdList(const std::string& agent) { return idList(keyframeIds(agent)); }
 
-// Latest status of every diagnostics task, by name.
-class DiagnosticsWatcher {
- public:
-  explicit DiagnosticsWatcher(ros::NodeHandle& nh)
-      : sub_(nh.subscribe("/diagnostics", 50, &DiagnosticsWatcher::onDiagnostics, this)) {}
-  std::string value(const std::string& task, const std::string& key) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    for (const auto& [name, status] : latest_) {
-      if (name.size() < task.size() || name.compare(name.size() - task.size(), task.size(), task) != 0) continue;
-      for (const auto& kv : status.values) {
-        if (kv.key == key) return kv.value;
-      }
-    }
-    return "";
-  }
-  /// Waits until value(task, key) == expected.
-  bool waitFor(const std::string& task, const std::string& key, const std::string& expected, double seconds = 20.0) {
-    const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(seconds);
-    while (ros::ok() && ros::WallTime::now() < end) {
-      if (value(task, key) == expected) return true;
-      ros::WallDuration(0.1).sleep();
-    }
-    return false;
-  }
-
- private:
-  void onDiagnostics(const diagnostic_msgs::DiagnosticArray::ConstPtr& msg) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    for (const auto& s : msg->status) latest_[s.name] = s;
-  }
-  std::mutex mutex_;
-  std::map<std::string, diagnostic_msgs::DiagnosticStatus> latest_;
-  ros::Subscriber sub_;
-};
+using test::DiagnosticsWatcher;
 
 // The merge node's warnings on /rosout.
 class WarningWatcher {
@@ -895,9 +864,7 @@ TEST(RealLsdBags, BothDirectionsMergeThroughTheNodeNearTheOverlapTruth) {
   streamLsdBag(dir + "/agent_b.bag", diagnostics, "agent_b");
   ASSERT_FALSE(HasFailure()) << "the bags' messages did not all reach the node";
   const YAML::Node rec = YAML::LoadFile(dir + "/truth.yaml")["sim3_agent_b_to_agent_a_alternatives"]["overlap_local_recommended"];
-  const YAML::Node q = rec["q_xyzw"], t = rec["t"];
-  const Sim3 truth_ab(rec["s"].as<double>(), Eigen::Quaterniond(q[3].as<double>(), q[0].as<double>(), q[1].as<double>(), q[2].as<double>()),
-                      Eigen::Vector3d(t[0].as<double>(), t[1].as<double>(), t[2].as<double>()));
+  const Sim3 truth_ab = test::sim3FromYaml(rec, "q_xyzw");
   const double truth_sd = std::log(1.25) / 2.0;  // the truth's +-25 % as two of its standard deviations
   Sim3 b_into_a, a_into_b;
   for (const bool reverse : {false, true}) {
@@ -1154,13 +1121,4 @@ TEST(BadConfig, TheNodeRefusesToStartAndNamesTheKey) {
 }  // namespace ros_bridge
 }  // namespace pcr_pro
 
-int main(int argc, char** argv) {
-  ::testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "merge_node_test");
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int result = RUN_ALL_TESTS();
-  spinner.stop();
-  ros::shutdown();
-  return result;
-}
+int main(int argc, char** argv) { return pcr_pro::test::runRosTests(argc, argv, "merge_node_test"); }

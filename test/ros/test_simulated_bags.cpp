@@ -18,6 +18,7 @@
 #include <map>
 #include <vector>
 
+#include "common/bag_reading.h"
 #include "pcr_pro/geometry/kdtree.h"
 #include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
@@ -30,43 +31,13 @@ namespace pcr_pro {
 namespace ros_bridge {
 namespace {
 
-struct BagContents {
-  std::map<std::string, AgentStore> stores;
-  std::map<std::string, int> messages;  // per topic
-  std::vector<ros::Time> times;
-};
+using test::BagContents;
 
 // Reads a bag as the node does; skip_final_graph leaves out each agent's last graph message (the
-// loop closure).
+// loop closure): the one after as many graphs as keyframes.
 BagContents readBag(const std::string& file, bool skip_final_graph = false) {
-  BagContents out;
-  std::map<std::string, int> keyframes, graphs;
-  rosbag::Bag bag(file, rosbag::bagmode::Read);
-  for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
-    const std::string topic = m.getTopic();
-    const std::string agent = topic.substr(1, topic.find('/', 1) - 1);
-    ++out.messages[topic];
-    out.times.push_back(m.getTime());
-    auto it = out.stores.emplace(agent, AgentStore(agent + "/map")).first;
-    if (const auto kf = m.instantiate<pcr_pro::Keyframe>()) {
-      const DecodedKeyframe d = keyframeFromMsg(*kf);
-      EXPECT_EQ(d.frame_id, agent + "/map");
-      it->second.setKeyframe(d.keyframe, d.camera);
-    } else if (const auto cloud = m.instantiate<sensor_msgs::PointCloud2>()) {
-      it->second.setCloud(cloudFromMsg(*cloud));
-    } else if (const auto lsd = m.instantiate<lsd_slam_viewer::keyframeMsg>()) {
-      it->second.setLsdKeyframe(lsdKeyframeFromMsg(*lsd));
-      ++keyframes[agent];
-    } else if (const auto graph = m.instantiate<lsd_slam_viewer::keyframeGraphMsg>()) {
-      // The final graph is the one after as many graphs as keyframes.
-      if (skip_final_graph && graphs[agent] == keyframes[agent] && keyframes[agent] > 0) continue;
-      ++graphs[agent];
-      EXPECT_GT(it->second.updateLsdPoses(lsdGraphFromMsg(*graph).poses), 0);
-    } else {
-      ADD_FAILURE() << "unexpected message on " << topic;
-    }
-  }
-  return out;
+  if (!skip_final_graph) return test::readAgentBag(file);
+  return test::readAgentBag(file, [](int keyframes, int graphs) { return !(graphs == keyframes && keyframes > 0); });
 }
 
 class SimulatedBags : public ::testing::Test {

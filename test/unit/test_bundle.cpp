@@ -153,6 +153,57 @@ TEST_F(TempBundle, MessagesStayOnOneLine) {
   EXPECT_NE(message.find("(keyframes[0].image)"), std::string::npos) << message;
 }
 
+// The core's own reader (decodeImageFile) keeps no process-wide state: it cannot see libjpeg's
+// stderr warning, so it tells a JPEG cut short from its bytes. Its verdicts, and a complete JPEG
+// (also with bytes after its end marker) still loading, on an image of the bundle's camera size.
+TEST_F(TempBundle, CoreReaderRefusesImagesCutShort) {
+  cv::Mat grey(6, 8, CV_8UC1);
+  cv::randu(grey, 0, 255);
+  std::vector<unsigned char> jpeg;
+  ASSERT_TRUE(cv::imencode(".jpg", grey, jpeg));
+  const std::string whole(jpeg.begin(), jpeg.end());
+  writeFile("keyframes/7.png", whole + std::string(16, '\0'));
+  EXPECT_EQ(loadBundle(dir_.string()).keyframes[0].image.size(), cv::Size(8, 6));
+  writeFile("keyframes/7.png", whole.substr(0, whole.size() - 2));  // no end-of-image marker
+  std::string message = loadError();
+  EXPECT_NE(message.find("keyframes/7.png: cannot read image: truncated JPEG (keyframes[0].image)"), std::string::npos)
+      << message;
+  writeFile("keyframes/7.png", whole.substr(0, whole.size() / 2));
+  message = loadError();
+  EXPECT_NE(message.find("(keyframes[0].image)"), std::string::npos) << message;
+
+  std::vector<unsigned char> png;
+  ASSERT_TRUE(cv::imencode(".png", grey, png));
+  writeFile("keyframes/7.png", std::string(png.begin(), png.begin() + static_cast<std::ptrdiff_t>(png.size() / 2)));
+  message = loadError();
+  EXPECT_NE(message.find("keyframes/7.png: cannot read image"), std::string::npos) << message;
+  EXPECT_NE(message.find("(keyframes[0].image)"), std::string::npos) << message;
+}
+
+// The caller's reader reads every image and depth file, is told the camera's size, and its
+// InputError gets the bundle field appended.
+TEST_F(TempBundle, CallersImageReaderIsUsedForEveryFile) {
+  std::vector<std::string> read;
+  const ImageFileReader counting = [&read](const std::string& file, const cv::Size& expected) {
+    EXPECT_EQ(expected, cv::Size(8, 6));
+    read.push_back(fs::path(file).filename().string());
+    return decodeImageFile(file, expected);
+  };
+  const AgentMap map = loadBundle(dir_.string(), InputLimits(), nullptr, counting);
+  EXPECT_EQ(read, (std::vector<std::string>{"7.png", "7_depth.png", "9.png"}));
+  EXPECT_EQ(map.keyframes.size(), 2u);
+  const ImageFileReader refusing = [](const std::string& file, const cv::Size&) -> cv::Mat {
+    throw InputError(file + ": refused by the reader");
+  };
+  try {
+    loadBundle(dir_.string(), InputLimits(), nullptr, refusing);
+    ADD_FAILURE() << "the reader's error was lost";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("7.png: refused by the reader (keyframes[0].image)"), std::string::npos)
+        << e.what();
+  }
+}
+
 TEST_F(TempBundle, MissingDirectory) {
   const std::string missing = (dir_ / "nope").string();
   try {
@@ -452,7 +503,8 @@ std::vector<Defect> defects() {
        depth,
        {"cannot read image", "(keyframes[0].depth)"}},
       {"DepthTruncated", "", "", truncated_png(depth), depth, {"cannot read image", "(keyframes[0].depth)"}},
-      {"DepthBadCrc", "", "", flip_byte(depth, 40), depth, {"cannot read image", "CRC", "(keyframes[0].depth)"}},
+      // The core's reader leaves the CRC to libpng; the tools' reader names it (test_bad_input).
+      {"DepthBadCrc", "", "", flip_byte(depth, 40), depth, {"cannot read image", "(keyframes[0].depth)"}},
       {"Depth8Bit", "", "", image_of(depth, grey8), depth, {"16-bit single-channel", "(keyframes[0].depth)"}},
       {"Depth16BitColour", "", "", image_of(depth, u16c3), depth, {"16-bit single-channel", "(keyframes[0].depth)"}},
       {"DepthWrongSize", "", "", image_of(depth, u16small), depth, {"8x5", "(keyframes[0].depth)"}},

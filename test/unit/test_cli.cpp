@@ -15,6 +15,7 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include "common/cli_run.h"
 #include "common/sim_worlds.h"
 #include "pcr_pro/io/cloud_io.h"
 #include "test_helpers.h"
@@ -24,24 +25,9 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct CliRun {
-  int status = -1;
-  std::string out, err;
-};
+using test::CliRun;
 
-CliRun runIcp(const std::string& args) {
-  const fs::path tmp = fs::temp_directory_path() / ("pcr_pro_cli_" + std::to_string(::getpid()));
-  fs::create_directories(tmp);
-  const std::string out = (tmp / "out.txt").string(), err = (tmp / "err.txt").string();
-  const std::string cmd = std::string(PCR_PRO_ICP_BIN) + " " + args + " >" + out + " 2>" + err;
-  const int raw = std::system(cmd.c_str());
-  CliRun r;
-  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
-  std::ifstream o(out), e(err);
-  r.out.assign(std::istreambuf_iterator<char>(o), {});
-  r.err.assign(std::istreambuf_iterator<char>(e), {});
-  return r;
-}
+CliRun runIcp(const std::string& args) { return test::runCli(PCR_PRO_ICP_BIN, args, "pcr_pro_cli"); }
 
 fs::path tempFile(const std::string& name, const std::string& content) {
   const fs::path dir = fs::temp_directory_path() / ("pcr_pro_cli_data_" + std::to_string(::getpid()));

@@ -8,6 +8,7 @@
 #include "pcr_pro/registration/icp.h"
 #include "pcr_pro/geometry/kdtree.h"
 #include "pcr_pro/geometry/normals.h"
+#include "pcr_pro/geometry/similarity_fit.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {
@@ -18,16 +19,6 @@ Correspondences pairs(const Cloud& source, const Cloud& target) {
   c.source = source;
   c.target = target;
   return c;
-}
-
-// Left-perturbation error δ = (δt, δω) with T_est = exp(δ) T_true, to first order.
-Vector6d poseError(const Sim3& est, const Sim3& truth) {
-  const Eigen::Matrix3d dr = est.rotation() * truth.rotation().transpose();
-  const Eigen::AngleAxisd aa(dr);
-  Vector6d d;
-  d.head<3>() = est.translation() - (est.scale() / truth.scale()) * dr * truth.translation();
-  d.tail<3>() = aa.angle() * aa.axis();
-  return d;
 }
 
 TEST(Covariance, ZeroResidualPointToPointMatchesClosedForm) {
@@ -95,7 +86,7 @@ TEST(Covariance, MonteCarloNeesIsConsistentWithKnownCorrespondences) {
     const Sim3 est = umeyama(xs, yt, false);
     const CovarianceResult r = computeIcpCovariance(pairs(xs, yt), est, ErrorMetric::kPointToPoint, false, o);
     ASSERT_EQ(r.status, Status::kOk);
-    const Vector6d d = poseError(est, truth);
+    const Vector6d d = poseDifference(est, truth);
     nees_sum += d.dot(r.covariance.ldlt().solve(d));
     nees_trans += d.head<3>().dot(r.covariance.topLeftCorner<3, 3>().ldlt().solve(d.head<3>()));
     nees_rot += d.tail<3>().dot(r.covariance.bottomRightCorner<3, 3>().ldlt().solve(d.tail<3>()));
@@ -133,7 +124,7 @@ TEST(Covariance, MonteCarloNeesWithScaleAndEstimatedNoise) {
     ASSERT_EQ(r.status, Status::kOk);
     EXPECT_NEAR(r.noise_stddev, sigma, 0.1 * sigma);
     Eigen::Matrix<double, 7, 1> d;
-    d << poseError(est, truth), est.scale() - truth.scale();
+    d << poseDifference(est, truth), est.scale() - truth.scale();
     nees_sum += d.dot(r.covariance7.ldlt().solve(d));
   }
   EXPECT_GT(nees_sum / trials, 6.48);
@@ -176,7 +167,7 @@ Anees rematchedAnees(int points, int trials, unsigned seed) {
     const CovarianceResult rc = computeIcpCovariance(icp.matches, icp.transform, io.error_metric, false, closed);
     const CovarianceResult rb = computeIcpCovariance(icp.matches, icp.transform, io.error_metric, false, blocks);
     if (rc.status != Status::kOk || rb.status != Status::kOk) continue;
-    const Vector6d d = poseError(icp.transform, truth);
+    const Vector6d d = poseDifference(icp.transform, truth);
     a.closed += d.dot(rc.covariance.ldlt().solve(d)) / 6.0;
     a.blocks += d.dot(rb.covariance.ldlt().solve(d)) / 6.0;
     ++used;

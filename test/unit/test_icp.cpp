@@ -9,14 +9,7 @@
 namespace pcr_pro {
 namespace {
 
-struct Errors {
-  double rotation_deg, translation, scale_rel;
-};
-
-Errors compare(const Sim3& est, const Sim3& truth) {
-  return {test::deg(rotationDistance(est.rotation(), truth.rotation())), (est.translation() - truth.translation()).norm(),
-          std::abs(est.scale() / truth.scale() - 1.0)};
-}
+using test::Errors;
 
 // Two independent samplings of the same scene with a little noise: the target in its frame,
 // the source expressed in a frame related by `truth` (target = truth(source)).
@@ -48,8 +41,8 @@ TEST_P(SimilarityIcp, RecoversScaleFromTenPercentFiveDegreeStart) {
   o.error_metric = std::get<1>(GetParam());
   const IcpResult r = alignIcp(source, target, initial, o);
   ASSERT_EQ(r.status, Status::kOk) << r.message;
-  const Errors e = compare(r.transform, truth);
-  const Errors e0 = compare(initial, truth);
+  const Errors e = test::errors(r.transform, truth);
+  const Errors e0 = test::errors(initial, truth);
   // Point-to-point on two independent sparse samplings keeps a sampling bias (it settles on a
   // fixed point up to ~0.6 deg off here), hence its looser bound; point-to-plane does not.
   const bool p2p = o.error_metric == ErrorMetric::kPointToPoint;
@@ -75,7 +68,7 @@ TEST_P(RigidIcp, RecoversRotationFromIdentity) {
   o.error_metric = std::get<1>(GetParam());
   const IcpResult r = alignIcp(source, target, Sim3::identity(), o);
   ASSERT_EQ(r.status, Status::kOk) << r.message;
-  const Errors e = compare(r.transform, truth);
+  const Errors e = test::errors(r.transform, truth);
   // Point-to-point keeps the sampling bias of SimilarityIcp above, hence its looser bound.
   const bool p2p = o.error_metric == ErrorMetric::kPointToPoint;
   EXPECT_LT(e.rotation_deg, p2p ? 1.0 : 0.3);
@@ -97,7 +90,7 @@ TEST(Icp, RealCarScansFromIdentityMatchGroundTruth) {
     o.error_metric = metric;
     const IcpResult r = alignIcp(source, target, Sim3::identity(), o);
     ASSERT_EQ(r.status, Status::kOk) << errorMetricName(metric) << ": " << r.message;
-    const Errors e = compare(r.transform, truth);
+    const Errors e = test::errors(r.transform, truth);
     EXPECT_LT(e.rotation_deg, 0.2) << errorMetricName(metric);
     EXPECT_LT(e.translation, 0.05) << errorMetricName(metric);
     // The scans overlap almost wholly: the overlap checks (reciprocal, adaptive gate) keep most of
@@ -123,7 +116,7 @@ TEST(Icp, RealCarScanWithKnownSimilarity) {
   o.estimate_scale = true;
   const IcpResult r = alignIcp(source, target, initial, o);
   ASSERT_EQ(r.status, Status::kOk) << r.message;
-  const Errors e = compare(r.transform, truth);
+  const Errors e = test::errors(r.transform, truth);
   EXPECT_LT(e.rotation_deg, 0.05);
   EXPECT_LT(e.scale_rel, 1e-3);
   EXPECT_LT(e.translation, 0.05);

@@ -16,16 +16,7 @@ constexpr int kGridStep = 4;  // map points every kGridStep pixels
 // The plane covers this pixel rectangle; the rest of the image sees nothing.
 constexpr int kPlaneU0 = 40, kPlaneU1 = 200, kPlaneV0 = 40, kPlaneV1 = 160;
 
-PinholeCamera testCamera() {
-  PinholeCamera cam;
-  cam.fx = 400.0;
-  cam.fy = 410.0;
-  cam.cx = 159.5;
-  cam.cy = 119.5;
-  cam.width = 320;
-  cam.height = 240;
-  return cam;
-}
+PinholeCamera testCamera() { return {400.0, 410.0, 159.5, 119.5, 320, 240}; }  // fx fy cx cy width height
 
 MapKeyframe testKeyframe() {
   MapKeyframe kf;

@@ -15,15 +15,7 @@
 namespace pcr_pro {
 namespace {
 
-PinholeCamera smallCamera() {
-  PinholeCamera c;
-  c.fx = c.fy = 100.0;
-  c.cx = 31.5;
-  c.cy = 23.5;
-  c.width = 64;
-  c.height = 48;
-  return c;
-}
+PinholeCamera smallCamera() { return {100.0, 100.0, 31.5, 23.5, 64, 48}; }  // fx fy cx cy width height
 
 LsdKeyframe emptyLsdKeyframe() {
   LsdKeyframe kf;

@@ -15,8 +15,10 @@
 #include <yaml-cpp/yaml.h>
 
 #include "common/sim_worlds.h"
+#include "common/cli_run.h"
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/merge_pipeline.h"
+#include "pcr_pro/registration/filters.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {
@@ -39,14 +41,8 @@ AgentMap rescaled(const AgentMap& map, double factor) {
   return out;
 }
 
-struct Errors {
-  double rotation_deg, scale_rel, translation;
-};
-
-Errors errors(const Sim3& est, const Sim3& truth) {
-  return {test::deg(rotationDistance(est.rotation(), truth.rotation())), std::abs(est.scale() / truth.scale() - 1.0),
-          (est.translation() - truth.translation()).norm()};
-}
+using test::Errors;
+using test::errors;
 
 class MergeScaleRatios : public ::testing::TestWithParam<std::tuple<std::string, double>> {};
 
@@ -226,6 +222,33 @@ TEST(Merge, UnknownKeyframeAndBadMapsGiveInvalidInput) {
   EXPECT_EQ(mergeMaps(no_kf, a, MergeRequest(), MergeOptions()).report.status, Status::kInvalidInput);
 }
 
+// Error rule (pcr_pro.h): what the maps hold is a status (above, and a cloud the filters empty);
+// only invalid options, the caller's own choice, throw.
+TEST(Merge, InvalidOptionsThrowAndAMapTheFiltersEmptyIsAStatus) {
+  const std::string dir = simDemo();
+  const AgentMap a = loadBundle(dir + "/agent_a"), b = loadBundle(dir + "/agent_b");
+  MergeOptions invalid;
+  invalid.merge.min_overlap = 2.0;
+  EXPECT_THROW(MergePipeline{invalid}, InputError);
+  EXPECT_THROW(mergeMaps(b, a, MergeRequest(), invalid), InputError);
+
+  // Each point kept with probability 1e-9: the chain empties the map clouds (checked first).
+  MergeOptions sparse;
+  FilterStep step;
+  step.type = FilterStep::Type::kRandomSampling;
+  step.random_sampling.keep_ratio = 1e-9;
+  sparse.registration.filters.steps.push_back(step);
+  ASSERT_EQ(applyFilterChain(b.cloud, sparse.registration.filters).cols(), 0);
+  MergeResult r;
+  ASSERT_NO_THROW(r = mergeMaps(b, a, MergeRequest(), sparse));
+  EXPECT_EQ(r.report.status, Status::kInvalidInput) << r.report.message;
+  EXPECT_FALSE(r.report.transform);
+  AgentMap empty = b;
+  empty.cloud.resize(3, 0);
+  ASSERT_NO_THROW(r = mergeMaps(empty, a, MergeRequest(), MergeOptions()));
+  EXPECT_NE(r.report.message.find("empty cloud"), std::string::npos) << r.report.message;
+}
+
 TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
   const MergeOptions shipped = loadMergeConfig(std::string(PCR_PRO_CONFIG_DIR) + "/merge.yaml");
   const MergeOptions d;
@@ -256,24 +279,9 @@ TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
 
 // --- the pcr_pro_merge command line
 
-struct CliRun {
-  int status = -1;
-  std::string out, err;
-};
+using test::CliRun;
 
-CliRun runMerge(const std::string& args) {
-  namespace fs = std::filesystem;
-  const fs::path tmp = fs::temp_directory_path() / ("pcr_pro_merge_cli_" + std::to_string(::getpid()));
-  fs::create_directories(tmp);
-  const std::string out = (tmp / "out.txt").string(), err = (tmp / "err.txt").string();
-  const int raw = std::system((std::string(PCR_PRO_MERGE_BIN) + " " + args + " >" + out + " 2>" + err).c_str());
-  CliRun r;
-  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
-  std::ifstream o(out), e(err);
-  r.out.assign(std::istreambuf_iterator<char>(o), {});
-  r.err.assign(std::istreambuf_iterator<char>(e), {});
-  return r;
-}
+CliRun runMerge(const std::string& args) { return test::runCli(PCR_PRO_MERGE_BIN, args, "pcr_pro_merge_cli"); }
 
 TEST(MergeCli, MergesWritesOutputsAndRefuses) {
   namespace fs = std::filesystem;

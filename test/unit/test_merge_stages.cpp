@@ -15,6 +15,7 @@
 #include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/registration/cloud_registration.h"
+#include "pcr_pro/registration/filters.h"
 #include "pcr_pro/sim/simulator.h"
 #include "test_helpers.h"
 
@@ -324,6 +325,41 @@ TEST(NoiseFloor, ACloudRegisteredWithItselfHasAFiniteResolutionLimitedInformatio
   // Information of a few thousand correspondences at that noise: far below 1e23.
   EXPECT_LT(r.information->maxCoeff(), 1e12);
   EXPECT_GT(r.covariance->diagonal().minCoeff(), 0.0);
+}
+
+// Error rule (pcr_pro.h): the clouds are data, so "no points" is a status whether the cloud came
+// empty or the filters emptied it; invalid options and a k-d tree of another cloud are the
+// caller's mistakes and throw.
+TEST(ErrorRule, RegisterCloudsAnswersNoPointsWithAStatusAndThrowsForCallersMistakes) {
+  std::mt19937 rng(5);
+  const Cloud cloud = test::syntheticScene(200, 4.0, rng);
+  const Cloud empty(3, 0);
+  RegistrationReport r;
+  ASSERT_NO_THROW(r = registerClouds(empty, cloud, std::nullopt, RegistrationOptions()));
+  EXPECT_EQ(r.status, Status::kInvalidInput);
+  EXPECT_NE(r.message.find("source cloud is empty"), std::string::npos) << r.message;
+  EXPECT_FALSE(r.transform);
+  ASSERT_NO_THROW(r = registerClouds(cloud, empty, std::nullopt, RegistrationOptions()));
+  EXPECT_EQ(r.status, Status::kInvalidInput);
+  EXPECT_NE(r.message.find("target cloud is empty"), std::string::npos) << r.message;
+
+  // A random sampling that keeps each point with probability 1e-9: the chain empties 200 points
+  // (checked here, so the test cannot pass on a cloud the filters left alone).
+  RegistrationOptions sparse;
+  FilterStep step;
+  step.type = FilterStep::Type::kRandomSampling;
+  step.random_sampling.keep_ratio = 1e-9;
+  sparse.filters.steps.push_back(step);
+  ASSERT_EQ(applyFilterChain(cloud, sparse.filters).cols(), 0);
+  ASSERT_NO_THROW(r = registerClouds(cloud, cloud, std::nullopt, sparse));
+  EXPECT_EQ(r.status, Status::kInvalidInput);
+  EXPECT_NE(r.message.find("filters removed every point"), std::string::npos) << r.message;
+
+  RegistrationOptions invalid;
+  invalid.icp.trim_ratio = 0.0;
+  EXPECT_THROW(registerClouds(cloud, cloud, std::nullopt, invalid), InputError);
+  const KdTree other(cloud.leftCols(100));
+  EXPECT_THROW(registerClouds(cloud, cloud, std::nullopt, RegistrationOptions(), &other), InputError);
 }
 
 }  // namespace

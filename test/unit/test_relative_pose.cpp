@@ -27,15 +27,7 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
 constexpr int kPoints = 300;
 
-PinholeCamera testCamera() {
-  PinholeCamera c;
-  c.fx = c.fy = 500.0;
-  c.cx = 320.0;
-  c.cy = 240.0;
-  c.width = 640;
-  c.height = 480;
-  return c;
-}
+PinholeCamera testCamera() { return {500.0, 500.0, 320.0, 240.0, 640, 480}; }  // fx fy cx cy width height
 
 double angleBetween(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   return std::atan2(a.cross(b).norm(), a.dot(b));
@@ -283,13 +275,7 @@ TEST(RelativePose, ConventionSourceToTarget) {
 // Pixels fed through PinholeCamera::bearing with a non-square, off-centre camera: the pose
 // does not depend on how the bearings were made, only on K being applied.
 TEST(RelativePose, BearingsFromPinholeCameraWithDifferentIntrinsics) {
-  PinholeCamera cam;
-  cam.fx = 520.0;
-  cam.fy = 480.0;
-  cam.cx = 300.0;
-  cam.cy = 260.0;
-  cam.width = 640;
-  cam.height = 480;
+  const PinholeCamera cam{520.0, 480.0, 300.0, 260.0, 640, 480};  // fx fy cx cy width height
   std::mt19937 rng(11);
   const Scene s = makeScene(&rng, 20.0 * kDeg, 150, 0.0, 0.0);
   std::vector<Eigen::Vector3d> bt, bs;
@@ -326,13 +312,7 @@ TEST(RelativePose, RealFramesAgreeWithReferencePoses) {
     t_w.emplace_back(v[0], v[1], v[2]);
   }
   ASSERT_EQ(r_w.size(), 5u);
-  PinholeCamera cam;
-  cam.fx = 518.0;
-  cam.fy = 519.0;
-  cam.cx = 325.5;
-  cam.cy = 253.5;
-  cam.width = 640;
-  cam.height = 480;
+  const PinholeCamera cam{518.0, 519.0, 325.5, 253.5, 640, 480};  // slambook2's fx fy cx cy width height
 
   const FeatureMatchingOptions fo;
   const std::pair<int, int> pairs[] = {{2, 3}, {3, 4}, {3, 5}};

@@ -13,6 +13,7 @@
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/merge/seed.h"
+#include "common/cli_run.h"
 #include "common/sim_worlds.h"
 #include "test_helpers.h"
 
@@ -73,23 +74,9 @@ TEST(Seed, EqualSeedsGiveBitForBitEqualMerges) {
   expectBitEqual(first, second);
 }
 
-struct CliRun {
-  int status = -1;
-  std::string out, err;
-};
+using test::CliRun;
 
-CliRun run(const std::string& binary, const std::string& args) {
-  const fs::path tmp = fs::temp_directory_path() / ("pcr_pro_seed_cli_" + std::to_string(::getpid()));
-  fs::create_directories(tmp);
-  const std::string out = (tmp / "out.txt").string(), err = (tmp / "err.txt").string();
-  const int raw = std::system((binary + " " + args + " >" + out + " 2>" + err).c_str());
-  CliRun r;
-  r.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : 128 + WTERMSIG(raw);
-  std::ifstream o(out), e(err);
-  r.out.assign(std::istreambuf_iterator<char>(o), {});
-  r.err.assign(std::istreambuf_iterator<char>(e), {});
-  return r;
-}
+CliRun run(const std::string& binary, const std::string& args) { return test::runCli(binary, args, "pcr_pro_seed_cli"); }
 
 // The result YAML without its timings (the only line that may differ between equal runs).
 std::string withoutTimings(const std::string& yaml) {

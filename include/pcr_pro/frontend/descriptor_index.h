@@ -7,7 +7,7 @@
  * The index owns its randomness: one std::mt19937_64 seeded by the caller draws the order of the
  * descriptors and the split dimensions of every tree. The same descriptors and seed give the same
  * trees and the same answers, whatever else the process does with random numbers (FLANN draws
- * from the process-global std::rand()).
+ * from the C library's one shared generator).
  *
  * Building: every tree splits its descriptors recursively at the mean of one dimension, chosen at
  * random among the kSplitCandidates dimensions of largest variance (estimated on at most

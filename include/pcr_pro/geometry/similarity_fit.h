@@ -90,6 +90,13 @@ Eigen::Matrix<double, 3, 7> similarityJacobian(const Eigen::Vector3d& y);
 Eigen::Matrix<double, 7, 1> similarityDifference(const Sim3& a, const Sim3& b);
 
 /**
+ * @brief The pose part of similarityDifference(): the left-perturbation error δ = (δt, δω) with
+ * a = exp(δ) · b to first order, in the order of the 6x6 covariances (x y z rot_x rot_y rot_z);
+ * e.g. an estimate's error against its truth, a = estimate, b = truth.
+ */
+Vector6d poseDifference(const Sim3& a, const Sim3& b);
+
+/**
  * @brief The adjoint of a similarity G in this convention: G · exp(δ) · G⁻¹ = exp(Ad_G δ), so a
  * covariance C of δ about Ŝ becomes Ad_G C Ad_Gᵀ about G Ŝ G⁻¹ (e.g. moved from the target map's
  * frame into a keyframe's, about P⁻¹ Ŝ with G = P⁻¹). With G = (s, R, t):

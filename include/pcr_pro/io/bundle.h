@@ -6,6 +6,7 @@
  */
 #pragma once
 
+#include <functional>
 #include <map>
 #include <string>
 #include <vector>
@@ -15,6 +16,26 @@
 #include "pcr_pro/geometry/sim3.h"
 
 namespace pcr_pro {
+
+/**
+ * @brief Reads one image file of a bundle as it is stored (8- or 16-bit, any channel count).
+ * @param[in] path an existing regular file
+ * @param[in] expected_size the camera's image size [px]; a reader that can tell the size from
+ *   the file's header may refuse another size before it decodes (bounded memory)
+ * @return the decoded image, never empty
+ * @throw InputError "<path>: <what is wrong>" (loadBundle() appends the bundle field)
+ */
+using ImageFileReader = std::function<cv::Mat(const std::string& path, const cv::Size& expected_size)>;
+
+/**
+ * @brief The core's ImageFileReader: OpenCV's decoder (cv::imdecode, unchanged), with no
+ * process-wide state (it neither captures nor redirects stderr, so it is safe in any thread). A
+ * JPEG cut short (no end-of-image marker after its last scan), which libjpeg would decode with a
+ * warning only, is refused. Decoders may still print their own warnings on stderr; the offline
+ * tools pass a stricter reader of their own that captures them and walks PNG chunks.
+ * @throw InputError "<path>: cannot read image[: reason]"
+ */
+cv::Mat decodeImageFile(const std::string& path, const cv::Size& expected_size);
 
 /**
  * @brief Reads a map bundle: DIR/bundle.yaml and the files it names (paths relative to DIR).
@@ -31,11 +52,12 @@ namespace pcr_pro {
  *
  * Resource bounds (limits): more than limits.max_keyframes keyframes, a camera of more than
  * limits.max_image_pixels pixels or a cloud of more than limits.max_cloud_points points is refused
- * with an InputError naming the field and the limit; a PNG whose header size is not the camera's
- * is refused before it is decoded.
+ * with an InputError naming the field and the limit; an image of another size than the camera's
+ * is refused (before it is decoded when read_image can tell the size from the file's header).
  *
  * @param[in] dir bundle directory
  * @param[in] limits resource bounds
+ * @param[in] read_image reads each keyframe and depth image file; empty: decodeImageFile()
  * @return the agent's map: frame id, map cloud [map units], camera, keyframes in file order
  * @throw InputError with a one-line message naming the file and the field at fault, e.g.
  *   "bundles/a/bundle.yaml: keyframes[2].pose.scale: must be > 0, got 0 (line 23)" or
@@ -46,7 +68,7 @@ namespace pcr_pro {
  *   (|norm - 1| > 0.001); normalised (line 23)" (plausibility.h)
  */
 AgentMap loadBundle(const std::string& dir, const InputLimits& limits = InputLimits(),
-                    std::vector<std::string>* warnings = nullptr);
+                    std::vector<std::string>* warnings = nullptr, const ImageFileReader& read_image = {});
 
 /**
  * @brief Ground truth of a two-agent case (CASE/truth.yaml, written by writeBundleTruth(); see

@@ -53,4 +53,7 @@ void writeBundleTruth(const std::string& path, const BundleTruth& truth, const s
 /// @return "{scale: s, rotation: [qx, qy, qz, qw], translation: [x, y, z]}" with 12 significant digits
 std::string sim3FlowYaml(const Sim3& s);
 
+/// @return a number as the bundle and truth writers write it: 12 significant digits
+std::string yamlNumber(double v);
+
 }  // namespace pcr_pro

@@ -69,11 +69,20 @@ struct MergeResult {
  */
 class MergePipeline {
  public:
-  /// @throw InputError naming the first invalid option
+  /// @throw InputError naming the first invalid option (a caller's mistake: error rule, pcr_pro.h)
   explicit MergePipeline(const MergeOptions& options);
 
   /**
    * @brief Merges the source agent's map into the target agent's.
+   *
+   * Error rule (pcr_pro.h): the two maps and the requested keyframe ids describe data as a SLAM
+   * system produced it, so every defect of theirs is a status, INVALID_INPUT with the reason:
+   * an empty map cloud, no keyframes, invalid camera intrinsics, a keyframe image missing, not
+   * 8-bit grey or of another size than the camera's, a non-finite pose, a requested keyframe
+   * that is not (or no longer, for a streaming agent) in its map, a cloud the filters empty. An
+   * agent that has not mapped anything yet is a normal state of a live system, not a bug of
+   * the caller. The options, the caller's own choice, were checked (thrown) at construction.
+   *
    * @param[in] source source agent (camera, keyframes, map cloud)
    * @param[in] target target agent
    * @param[in] request optional keyframe ids
@@ -82,6 +91,7 @@ class MergePipeline {
    *   stage that refused (NOT_ENOUGH_MATCHES, RELATIVE_POSE_FAILED, SCALE_FAILED, NO_OVERLAP,
    *   ICP_NOT_CONVERGED, DEGENERATE, INVALID_INPUT for what the data does) and why in
    *   report.message. Never NaN or infinite numbers with OK.
+   * @throw nothing for what the maps hold (see above); std::bad_alloc when memory runs out
    */
   MergeResult merge(const AgentMap& source, const AgentMap& target, const MergeRequest& request,
                     const std::string& source_key = "source", const std::string& target_key = "target");
@@ -105,7 +115,10 @@ std::optional<MergeEdge> poseGraphEdge(const MergeResult& result);
 
 /**
  * @brief One merge with a pipeline of its own (no cache kept): MergePipeline(options).merge().
- * @throw InputError on invalid options
+ * Error rule as MergePipeline::merge(): defects of the maps are a status (INVALID_INPUT), only
+ * invalid options throw.
+ * @return as MergePipeline::merge()
+ * @throw InputError naming the first invalid option (the caller's mistake)
  */
 MergeResult mergeMaps(const AgentMap& source, const AgentMap& target, const MergeRequest& request,
                       const MergeOptions& options);

@@ -27,10 +27,15 @@ namespace pcr_pro {
  * @param[in] options configuration of every stage
  * @param[in] target_tree optional k-d tree of `target`, built by the caller to query the target
  *            again afterwards; only with an empty filter chain (the ICP then uses it as is)
- * @return the report; status OK, ICP_NOT_CONVERGED or DEGENERATE (INVALID_INPUT when the
- *         filters leave a cloud empty), with timings
- * @throw InputError on empty clouds, invalid options, or a target_tree with filters or of
- *        another size than target
+ * Error rule (pcr_pro.h): the clouds are data, so an empty one is a status, INVALID_INPUT, the
+ * same status as when the filters empty a cloud: a caller handles one outcome for "no points",
+ * whether the sensor or the filters removed them. Invalid options and a target_tree that does
+ * not belong to `target` are the caller's mistakes and throw.
+ *
+ * @return the report; status OK, ICP_NOT_CONVERGED or DEGENERATE, or INVALID_INPUT when a cloud
+ *         is empty or the filters leave it empty (report.message says which), with timings
+ * @throw InputError on invalid options, or a target_tree with filters or of another size than
+ *        target
  */
 RegistrationReport registerClouds(const Cloud& source, const Cloud& target, const std::optional<Sim3>& initial,
                                   const RegistrationOptions& options, const KdTree* target_tree = nullptr);

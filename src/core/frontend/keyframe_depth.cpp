@@ -15,6 +15,64 @@ constexpr int kMaxNeighborhoodRadiusPx = 100;
 // Largest image accepted [px]: guards the depth buffer allocation against absurd camera sizes.
 constexpr long long kMaxPixels = 1LL << 28;
 
+// Copies the keyframe's depth image (CV_32FC1 of the camera's size) into `depth`, keeping the depths
+// in [min_depth, max_depth].
+void copyDepthImage(const MapKeyframe& keyframe, const PinholeCamera& camera, double min_depth, double max_depth,
+                    std::vector<float>* depth) {
+  const int width = camera.width;
+  const int height = camera.height;
+  const cv::Mat& img = keyframe.depth;
+  if (img.type() != CV_32FC1) {
+    throw InputError("keyframe " + std::to_string(keyframe.id) + ": depth image must be CV_32FC1 (32-bit float)");
+  }
+  if (img.cols != width || img.rows != height) {
+    throw InputError("keyframe " + std::to_string(keyframe.id) + ": depth image is " + std::to_string(img.cols) + "x" +
+                     std::to_string(img.rows) + " but the camera is " + std::to_string(width) + "x" +
+                     std::to_string(height));
+  }
+  for (int row = 0; row < height; ++row) {
+    const float* src = img.ptr<float>(row);
+    float* dst = depth->data() + static_cast<size_t>(row) * static_cast<size_t>(width);
+    for (int col = 0; col < width; ++col) {
+      const double z = src[col];
+      if (std::isfinite(z) && z >= min_depth && z <= max_depth) dst[col] = src[col];
+    }
+  }
+}
+
+// Projects the map cloud (at most max_points of it, spread evenly; 0: all) into `depth`, the nearest
+// depth in [min_depth, max_depth] per pixel.
+void projectCloud(const Sim3& pose, const Cloud& map_cloud, const PinholeCamera& camera, Eigen::Index max_points,
+                  double min_depth, double max_depth, std::vector<float>* depth) {
+  const int width = camera.width;
+  const int height = camera.height;
+  const Sim3 map_to_camera = pose.inverse();
+  const Eigen::Index n = map_cloud.cols();
+  // Subsampling: max_points indices spread evenly over the cloud.
+  Eigen::Index count = n;
+  if (max_points > 0 && n > max_points) count = max_points;
+  const double step = count > 0 ? static_cast<double>(n) / static_cast<double>(count) : 1.0;
+  for (Eigen::Index k = 0; k < count; ++k) {
+    const Eigen::Index i = count == n ? k : std::min(n - 1, static_cast<Eigen::Index>(static_cast<double>(k) * step));
+    const Eigen::Vector3d p_map = map_cloud.col(i);
+    if (!p_map.allFinite()) continue;
+    const Eigen::Vector3d p_cam = map_to_camera.apply(p_map);
+    const double z = p_cam.z();
+    if (!(z >= min_depth && z <= max_depth)) continue;
+    double u = 0.0;
+    double v = 0.0;
+    if (!camera.project(p_cam, &u, &v)) continue;
+    // Pixel (col, row) covers [col - 0.5, col + 0.5); the comparisons also reject NaN.
+    if (!(u >= -0.5 && u < width - 0.5 && v >= -0.5 && v < height - 0.5)) continue;
+    const int col = std::min(width - 1, static_cast<int>(std::floor(u + 0.5)));
+    const int row = std::min(height - 1, static_cast<int>(std::floor(v + 0.5)));
+    float& cell = (*depth)[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
+    const float zf = static_cast<float>(z);
+    if (!(zf > 0.0f)) continue;  // below float resolution
+    if (cell == 0.0f || zf < cell) cell = zf;
+  }
+}
+
 }  // namespace
 
 template <>
@@ -63,64 +121,19 @@ KeyframeDepth::KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& c
     throw InputError("keyframe " + std::to_string(keyframe.id) + ": pose has non-finite entries");
   }
 
-  const int width = camera_.width;
-  const int height = camera_.height;
   const double min_depth = options_.min_depth;
   const double max_depth = options_.max_depth > 0.0 ? options_.max_depth : std::numeric_limits<double>::infinity();
-  depth_.assign(static_cast<size_t>(width) * static_cast<size_t>(height), 0.0f);
-
+  depth_.assign(static_cast<size_t>(camera_.width) * static_cast<size_t>(camera_.height), 0.0f);
   if (!keyframe.depth.empty()) {
-    const cv::Mat& img = keyframe.depth;
-    if (img.type() != CV_32FC1) {
-      throw InputError("keyframe " + std::to_string(keyframe.id) + ": depth image must be CV_32FC1 (32-bit float)");
-    }
-    if (img.cols != width || img.rows != height) {
-      throw InputError("keyframe " + std::to_string(keyframe.id) + ": depth image is " + std::to_string(img.cols) +
-                       "x" + std::to_string(img.rows) + " but the camera is " + std::to_string(width) + "x" +
-                       std::to_string(height));
-    }
+    copyDepthImage(keyframe, camera_, min_depth, max_depth, &depth_);
     uses_depth_image_ = true;
-    for (int row = 0; row < height; ++row) {
-      const float* src = img.ptr<float>(row);
-      float* dst = depth_.data() + static_cast<size_t>(row) * static_cast<size_t>(width);
-      for (int col = 0; col < width; ++col) {
-        const double z = src[col];
-        if (std::isfinite(z) && z >= min_depth && z <= max_depth) dst[col] = src[col];
-      }
-    }
     if (!keyframe.depth_stddev.empty()) setUncertainty(keyframe);
   } else {
     if (!keyframe.depth_stddev.empty()) {
       throw InputError("keyframe " + std::to_string(keyframe.id) + ": depth_stddev given without a depth image");
     }
     uses_depth_image_ = false;
-    const Sim3 map_to_camera = pose.inverse();
-    const Eigen::Index n = map_cloud.cols();
-    // Subsampling: max_points indices spread evenly over the cloud.
-    Eigen::Index count = n;
-    if (options_.max_cloud_points_projected > 0 && n > options_.max_cloud_points_projected) {
-      count = options_.max_cloud_points_projected;
-    }
-    const double step = count > 0 ? static_cast<double>(n) / static_cast<double>(count) : 1.0;
-    for (Eigen::Index k = 0; k < count; ++k) {
-      const Eigen::Index i = count == n ? k : std::min(n - 1, static_cast<Eigen::Index>(static_cast<double>(k) * step));
-      const Eigen::Vector3d p_map = map_cloud.col(i);
-      if (!p_map.allFinite()) continue;
-      const Eigen::Vector3d p_cam = map_to_camera.apply(p_map);
-      const double z = p_cam.z();
-      if (!(z >= min_depth && z <= max_depth)) continue;
-      double u = 0.0;
-      double v = 0.0;
-      if (!camera_.project(p_cam, &u, &v)) continue;
-      // Pixel (col, row) covers [col - 0.5, col + 0.5); the comparisons also reject NaN.
-      if (!(u >= -0.5 && u < width - 0.5 && v >= -0.5 && v < height - 0.5)) continue;
-      const int col = std::min(width - 1, static_cast<int>(std::floor(u + 0.5)));
-      const int row = std::min(height - 1, static_cast<int>(std::floor(v + 0.5)));
-      float& cell = depth_[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
-      const float zf = static_cast<float>(z);
-      if (!(zf > 0.0f)) continue;  // below float resolution
-      if (cell == 0.0f || zf < cell) cell = zf;
-    }
+    projectCloud(pose, map_cloud, camera_, options_.max_cloud_points_projected, min_depth, max_depth, &depth_);
   }
   valid_pixels_ = static_cast<int>(std::count_if(depth_.begin(), depth_.end(), [](float z) { return z > 0.0f; }));
 

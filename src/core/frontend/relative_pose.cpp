@@ -73,6 +73,111 @@ bool spreadOk(const opengv::bearingVectors_t& target, const opengv::bearingVecto
   return false;
 }
 
+/// The correspondences with finite, non-zero bearings on both sides, normalised; original_index
+/// maps each back to its index in the caller's lists.
+struct ValidBearings {
+  opengv::bearingVectors_t target, source;
+  std::vector<int> original_index;
+};
+
+ValidBearings validBearings(const std::vector<Eigen::Vector3d>& bearings_target,
+                            const std::vector<Eigen::Vector3d>& bearings_source) {
+  ValidBearings out;
+  const std::size_t n_given = bearings_target.size();
+  out.target.reserve(n_given);
+  out.source.reserve(n_given);
+  out.original_index.reserve(n_given);
+  for (std::size_t i = 0; i < n_given; ++i) {
+    const Eigen::Vector3d& ft = bearings_target[i];
+    const Eigen::Vector3d& fs = bearings_source[i];
+    if (!ft.allFinite() || !fs.allFinite()) continue;
+    const double nt = ft.norm();
+    const double ns = fs.norm();
+    if (!(nt > 1e-12) || !(ns > 1e-12) || !std::isfinite(nt) || !std::isfinite(ns)) continue;
+    out.target.push_back(ft / nt);
+    out.source.push_back(fs / ns);
+    out.original_index.push_back(static_cast<int>(i));
+  }
+  return out;
+}
+
+/**
+ * OpenGV's optimize_nonlinear stops early on its flat cost (it squares the (1 - cos) terms), so
+ * refine -> re-select inliers is repeated until the inliers and the pose settle.
+ * @return true when the model was refined at least once
+ */
+bool refineModel(opengv::relative_pose::CentralRelativeAdapter* adapter, SacProblem& problem, double threshold,
+                 int sample_size, opengv::transformation_t* model, std::vector<int>* inliers) {
+  bool refined = false;
+  for (int round = 0; round < kMaxRefinementRounds && static_cast<int>(inliers->size()) >= sample_size; ++round) {
+    adapter->setR12(model->block<3, 3>(0, 0));
+    adapter->sett12(model->col(3).normalized());
+    const opengv::transformation_t optimised = opengv::relative_pose::optimize_nonlinear(*adapter, *inliers);
+    if (!isFinite(optimised) || !(optimised.col(3).norm() > 1e-12)) break;
+    std::vector<int> refined_inliers;
+    problem.selectWithinDistance(optimised, threshold, refined_inliers);
+    // A refinement that loses most of the support has left the basin of the RANSAC model:
+    // keep the model of the previous round.
+    if (static_cast<double>(refined_inliers.size()) < kMinKeptSupport * static_cast<double>(inliers->size())) break;
+    const double change = rotationDistance(optimised.block<3, 3>(0, 0), model->block<3, 3>(0, 0)) +
+                          std::acos(std::min(1.0, optimised.col(3).normalized().dot(model->col(3).normalized())));
+    const bool same_inliers = refined_inliers == *inliers;
+    *model = optimised;
+    *inliers = refined_inliers;
+    refined = true;
+    if (same_inliers && change < kRefinementConvergedRad) break;
+  }
+  return refined;
+}
+
+/// The RANSAC (and refined) model and its inliers as the result: rotation, direction, inliers in
+/// the caller's indices, and the status of the inlier and spread checks.
+void finishResult(const opengv::transformation_t& model, const std::vector<int>& inliers, const ValidBearings& valid,
+                  std::size_t n_given, bool refined, double min_spread_rad, const RelativePoseOptions& options,
+                  RelativePoseResult* result) {
+  const opengv::bearingVectors_t& target = valid.target;
+  const opengv::bearingVectors_t& source = valid.source;
+  const Eigen::Matrix3d r = model.block<3, 3>(0, 0);
+  const Eigen::Vector3d t = model.col(3);
+  const double t_norm = t.norm();
+  if (!r.allFinite() || !t.allFinite() || !(t_norm > 1e-12)) {
+    result->status = Status::kRelativePoseFailed;
+    result->message = "relative pose: the estimated model is not finite or has no translation";
+    return;
+  }
+  result->rotation = projectToRotation(r);
+  result->translation_direction = t / t_norm;
+  if (!result->rotation.allFinite()) {
+    result->status = Status::kRelativePoseFailed;
+    result->message = "relative pose: the estimated rotation is not finite";
+    result->rotation.setIdentity();
+    result->translation_direction.setZero();
+    return;
+  }
+
+  result->inliers.reserve(inliers.size());
+  for (int i : inliers) result->inliers.push_back(valid.original_index[static_cast<std::size_t>(i)]);
+  std::sort(result->inliers.begin(), result->inliers.end());
+  result->inlier_count = static_cast<int>(result->inliers.size());
+  result->inlier_ratio = static_cast<double>(result->inlier_count) / static_cast<double>(n_given);
+
+  std::ostringstream os;
+  os << result->inlier_count << " inliers of " << n_given << " correspondences ("
+     << relativePoseAlgorithmName(options.algorithm) << (refined ? ", refined" : "") << ")";
+  if (result->inlier_count < options.min_inliers || result->inlier_ratio < options.min_inlier_ratio) {
+    result->status = Status::kNotEnoughMatches;
+    os << ", need at least " << options.min_inliers << " inliers and an inlier ratio of " << options.min_inlier_ratio;
+    result->message = "relative pose: " + os.str();
+    return;
+  }
+  if (!spreadOk(target, source, inliers, min_spread_rad, "inliers", &result->message)) {
+    result->status = Status::kDegenerate;
+    return;
+  }
+  result->status = Status::kOk;
+  result->message = "relative pose: " + os.str();
+}
+
 }  // namespace
 
 const char* relativePoseAlgorithmName(RelativePoseAlgorithm algorithm) {
@@ -165,25 +270,10 @@ RelativePoseResult estimateRelativePose(const std::vector<Eigen::Vector3d>& bear
   RelativePoseResult result;
   const std::size_t n_given = bearings_target.size();
 
-  // Keep the correspondences with finite, non-zero bearings on both sides; OpenGV sees only
-  // those (viewpoint 1 = target, viewpoint 2 = source) and original_index maps back.
-  opengv::bearingVectors_t target;
-  opengv::bearingVectors_t source;
-  std::vector<int> original_index;
-  target.reserve(n_given);
-  source.reserve(n_given);
-  original_index.reserve(n_given);
-  for (std::size_t i = 0; i < n_given; ++i) {
-    const Eigen::Vector3d& ft = bearings_target[i];
-    const Eigen::Vector3d& fs = bearings_source[i];
-    if (!ft.allFinite() || !fs.allFinite()) continue;
-    const double nt = ft.norm();
-    const double ns = fs.norm();
-    if (!(nt > 1e-12) || !(ns > 1e-12) || !std::isfinite(nt) || !std::isfinite(ns)) continue;
-    target.push_back(ft / nt);
-    source.push_back(fs / ns);
-    original_index.push_back(static_cast<int>(i));
-  }
+  // OpenGV sees only the valid correspondences (viewpoint 1 = target, viewpoint 2 = source).
+  const ValidBearings valid = validBearings(bearings_target, bearings_source);
+  const opengv::bearingVectors_t& target = valid.target;
+  const opengv::bearingVectors_t& source = valid.source;
 
   const int sample_size = relativePoseSampleSize(options.algorithm);
   const int needed = std::max(sample_size, options.min_inliers);
@@ -230,73 +320,14 @@ RelativePoseResult estimateRelativePose(const std::vector<Eigen::Vector3d>& bear
     model = ransac.model_coefficients_;
     inliers = ransac.inliers_;
 
-    // OpenGV's optimize_nonlinear stops early on its flat cost (it squares the (1 - cos) terms),
-    // so refine -> re-select inliers is repeated until the inliers and the pose settle.
-    for (int round = 0; options.nonlinear_refinement && round < kMaxRefinementRounds &&
-                        static_cast<int>(inliers.size()) >= sample_size;
-         ++round) {
-      adapter.setR12(model.block<3, 3>(0, 0));
-      adapter.sett12(model.col(3).normalized());
-      const opengv::transformation_t optimised = opengv::relative_pose::optimize_nonlinear(adapter, inliers);
-      if (!isFinite(optimised) || !(optimised.col(3).norm() > 1e-12)) break;
-      std::vector<int> refined_inliers;
-      problem->selectWithinDistance(optimised, threshold, refined_inliers);
-      // A refinement that loses most of the support has left the basin of the RANSAC model:
-      // keep the model of the previous round.
-      if (static_cast<double>(refined_inliers.size()) < kMinKeptSupport * static_cast<double>(inliers.size())) break;
-      const double change = rotationDistance(optimised.block<3, 3>(0, 0), model.block<3, 3>(0, 0)) +
-                            std::acos(std::min(1.0, optimised.col(3).normalized().dot(model.col(3).normalized())));
-      const bool same_inliers = refined_inliers == inliers;
-      model = optimised;
-      inliers = refined_inliers;
-      refined = true;
-      if (same_inliers && change < kRefinementConvergedRad) break;
-    }
+    if (options.nonlinear_refinement) refined = refineModel(&adapter, *problem, threshold, sample_size, &model, &inliers);
   } catch (const std::exception& e) {
     result.status = Status::kRelativePoseFailed;
     result.message = std::string("relative pose: OpenGV failed: ") + e.what();
     return result;
   }
 
-  const Eigen::Matrix3d r = model.block<3, 3>(0, 0);
-  const Eigen::Vector3d t = model.col(3);
-  const double t_norm = t.norm();
-  if (!r.allFinite() || !t.allFinite() || !(t_norm > 1e-12)) {
-    result.status = Status::kRelativePoseFailed;
-    result.message = "relative pose: the estimated model is not finite or has no translation";
-    return result;
-  }
-  result.rotation = projectToRotation(r);
-  result.translation_direction = t / t_norm;
-  if (!result.rotation.allFinite()) {
-    result.status = Status::kRelativePoseFailed;
-    result.message = "relative pose: the estimated rotation is not finite";
-    result.rotation.setIdentity();
-    result.translation_direction.setZero();
-    return result;
-  }
-
-  result.inliers.reserve(inliers.size());
-  for (int i : inliers) result.inliers.push_back(original_index[static_cast<std::size_t>(i)]);
-  std::sort(result.inliers.begin(), result.inliers.end());
-  result.inlier_count = static_cast<int>(result.inliers.size());
-  result.inlier_ratio = static_cast<double>(result.inlier_count) / static_cast<double>(n_given);
-
-  std::ostringstream os;
-  os << result.inlier_count << " inliers of " << n_given << " correspondences ("
-     << relativePoseAlgorithmName(options.algorithm) << (refined ? ", refined" : "") << ")";
-  if (result.inlier_count < options.min_inliers || result.inlier_ratio < options.min_inlier_ratio) {
-    result.status = Status::kNotEnoughMatches;
-    os << ", need at least " << options.min_inliers << " inliers and an inlier ratio of " << options.min_inlier_ratio;
-    result.message = "relative pose: " + os.str();
-    return result;
-  }
-  if (!spreadOk(target, source, inliers, min_spread_rad, "inliers", &result.message)) {
-    result.status = Status::kDegenerate;
-    return result;
-  }
-  result.status = Status::kOk;
-  result.message = "relative pose: " + os.str();
+  finishResult(model, inliers, valid, n_given, refined, min_spread_rad, options, &result);
   return result;
 }
 

@@ -110,6 +110,14 @@ Eigen::Matrix<double, 7, 1> similarityDifference(const Sim3& a, const Sim3& b) {
   return d;
 }
 
+Vector6d poseDifference(const Sim3& a, const Sim3& b) {
+  const Eigen::Matrix3d dr = a.rotation() * b.rotation().transpose();
+  Vector6d d;
+  d.head<3>() = a.translation() - (a.scale() / b.scale()) * dr * b.translation();
+  d.tail<3>() = logSO3(dr);
+  return d;
+}
+
 Matrix7d similarityAdjoint(const Sim3& g) {
   Matrix7d ad = Matrix7d::Zero();
   const Eigen::Matrix3d& r = g.rotation();

@@ -2,8 +2,6 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include <unistd.h>
-
 #include <algorithm>
 #include <cctype>
 #include <climits>
@@ -252,58 +250,6 @@ std::string matDescription(const cv::Mat& m) {
   return std::string(bits) + " " + std::to_string(m.channels()) + "-channel";
 }
 
-std::uint32_t crc32(const unsigned char* data, std::size_t size, std::uint32_t crc) {
-  static const std::vector<std::uint32_t> table = [] {
-    std::vector<std::uint32_t> t(256);
-    for (std::uint32_t n = 0; n < 256; ++n) {
-      std::uint32_t c = n;
-      for (int k = 0; k < 8; ++k) c = (c & 1u) ? 0xedb88320u ^ (c >> 1) : c >> 1;
-      t[n] = c;
-    }
-    return t;
-  }();
-  for (std::size_t i = 0; i < size; ++i) crc = table[(crc ^ data[i]) & 0xffu] ^ (crc >> 8);
-  return crc;
-}
-
-std::uint32_t bigEndian32(const unsigned char* p) {
-  return (static_cast<std::uint32_t>(p[0]) << 24) | (static_cast<std::uint32_t>(p[1]) << 16) |
-         (static_cast<std::uint32_t>(p[2]) << 8) | static_cast<std::uint32_t>(p[3]);
-}
-
-/**
- * Walks the chunks of a PNG file (lengths, CRCs, IHDR first, IEND present). A truncated or damaged
- * PNG is reported here, with one line, instead of by libpng, which also prints to stderr.
- * @param[out] size the IHDR width and height when the file is a sound PNG (unchanged otherwise)
- * @return "" when the file is not a PNG or is sound, otherwise what is wrong
- */
-std::string pngDefect(const std::string& path, cv::Size* size) {
-  static const unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  std::ifstream in(path, std::ios::binary);
-  std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (bytes.size() < 8 || !std::equal(kSignature, kSignature + 8, bytes.begin())) return "";
-  std::size_t at = 8;
-  bool first = true;
-  while (true) {
-    if (bytes.size() - at < 12) return "truncated PNG";
-    const std::uint32_t length = bigEndian32(&bytes[at]);
-    const std::string type(reinterpret_cast<const char*>(&bytes[at + 4]), 4);
-    if (length > bytes.size() - at - 12) return "truncated PNG (chunk " + printable(type) + ")";
-    const std::uint32_t crc = crc32(&bytes[at + 4], 4u + length, 0xffffffffu) ^ 0xffffffffu;
-    if (crc != bigEndian32(&bytes[at + 8 + length])) return "damaged PNG (bad CRC in chunk " + printable(type) + ")";
-    if (first && type != "IHDR") return "damaged PNG (no IHDR chunk first)";
-    if (first && length < 8) return "damaged PNG (IHDR chunk too short)";
-    if (first) {
-      const std::uint32_t width = bigEndian32(&bytes[at + 8]), height = bigEndian32(&bytes[at + 12]);
-      if (width == 0 || height == 0 || width > INT_MAX || height > INT_MAX) return "damaged PNG (IHDR size)";
-      *size = cv::Size(static_cast<int>(width), static_cast<int>(height));
-    }
-    first = false;
-    at += 12u + length;
-    if (type == "IEND") return "";
-  }
-}
-
 void checkSize(int cols, int rows, const PinholeCamera& camera, const std::string& path, const std::string& field) {
   if (cols != camera.width || rows != camera.height) {
     throw InputError(path + ": image is " + std::to_string(cols) + "x" + std::to_string(rows) +
@@ -312,94 +258,44 @@ void checkSize(int cols, int rows, const PinholeCamera& camera, const std::strin
   }
 }
 
-/**
- * Redirects the process's stderr (fd 2) to a temporary file while it lives, and hands back what
- * was written there. Image decoders print on stderr: libjpeg reports a truncated or damaged JPEG
- * ("Premature end of JPEG file", "Corrupt JPEG data: ...") as a warning and still returns an
- * image; libpng prints benign warnings. The offline tools must print exactly one line.
- * Only for the single-threaded file readers of a bundle (fd 2 is process-wide).
- */
-class StderrCapture {
- public:
-  StderrCapture() {
-    std::fflush(stderr);
-    sink_ = std::tmpfile();
-    if (sink_ == nullptr) return;
-    saved_ = ::dup(2);
-    if (saved_ < 0 || ::dup2(::fileno(sink_), 2) < 0) restore();
-  }
-  ~StderrCapture() {
-    restore();
-    if (sink_ != nullptr) std::fclose(sink_);
-  }
-  StderrCapture(const StderrCapture&) = delete;
-  StderrCapture& operator=(const StderrCapture&) = delete;
-
-  /// Restores stderr and returns the first kMax bytes written while captured.
-  std::string finish() {
-    restore();
-    std::string text;
-    if (sink_ == nullptr) return text;
-    std::rewind(sink_);
-    constexpr std::size_t kMax = 300;
-    char buffer[kMax];
-    text.assign(buffer, std::fread(buffer, 1, kMax, sink_));
-    return text;
-  }
-
- private:
-  void restore() {
-    if (saved_ < 0) return;
-    std::fflush(stderr);
-    ::dup2(saved_, 2);
-    ::close(saved_);
-    saved_ = -1;
-  }
-  std::FILE* sink_ = nullptr;
-  int saved_ = -1;
-};
-
-bool isJpeg(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  unsigned char magic[3] = {0, 0, 0};
-  in.read(reinterpret_cast<char*>(magic), 3);
-  return in && magic[0] == 0xff && magic[1] == 0xd8 && magic[2] == 0xff;
-}
-
-/// Reads an image file unchanged; errors name the file and the bundle field. A PNG of another size
-/// than the camera's is refused from its header, before it is decoded (bounded memory).
-cv::Mat readImageFile(const std::string& path, const std::string& field, const PinholeCamera& camera) {
+/// Reads an image file with the caller's reader (loadBundle()); errors name the file and the
+/// bundle field.
+cv::Mat readImageFile(const std::string& path, const std::string& field, const PinholeCamera& camera,
+                      const ImageFileReader& read) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw InputError(path + ": " + missingFileReason(ec, "file not found") + " (" + field + ")");
   if (!fs::is_regular_file(path, ec)) throw InputError(path + ": not a regular file (" + field + ")");
-  cv::Size png_size(camera.width, camera.height);
-  const std::string defect = pngDefect(path, &png_size);
-  if (!defect.empty()) throw InputError(path + ": cannot read image: " + defect + " (" + field + ")");
-  checkSize(png_size.width, png_size.height, camera, path, field);
   cv::Mat image;
-  std::string decoder_output;
   try {
-    StderrCapture capture;
-    image = cv::imread(path, cv::IMREAD_UNCHANGED);
-    decoder_output = capture.finish();
+    const cv::Size expected(camera.width, camera.height);
+    image = read ? read(path, expected) : decodeImageFile(path, expected);
+  } catch (const InputError& e) {
+    throw InputError(std::string(e.what()) + " (" + field + ")");
   } catch (const cv::Exception& e) {
     throw InputError(oneLine(path + ": cannot read image: " + e.what(), 300) + " (" + field + ")");
   }
   if (image.empty()) throw InputError(path + ": cannot read image (" + field + ")");
-  // libjpeg decodes a damaged JPEG with a warning only: that is a corrupt keyframe, not an image.
-  // (Warnings of other decoders, e.g. libpng's about colour profiles, are benign and dropped.)
-  while (!decoder_output.empty() && std::isspace(static_cast<unsigned char>(decoder_output.back()))) {
-    decoder_output.pop_back();
-  }
-  if (!decoder_output.empty() && isJpeg(path)) {
-    throw InputError(oneLine(path + ": cannot read image: damaged JPEG (" + decoder_output, 300) + ") (" + field +
-                     ")");
-  }
   return image;
 }
 
-cv::Mat loadGreyImage(const std::string& path, const std::string& field, const PinholeCamera& camera) {
-  const cv::Mat raw = readImageFile(path, field, camera);
+// In a JPEG's entropy-coded data a 0xff byte is followed only by 0x00 or a restart marker, so
+// the end-of-image marker (ff d9) after the last start-of-scan (ff da) tells a complete file from
+// one cut short (bytes after it are allowed: some writers pad).
+bool jpegCutShort(const std::vector<unsigned char>& bytes) {
+  // Start of the last "ff <second>" at or after `from`, or npos.
+  const auto last = [&bytes](unsigned char second, std::size_t from) {
+    for (std::size_t end = bytes.size(); end >= from + 2; --end) {
+      if (bytes[end - 2] == 0xff && bytes[end - 1] == second) return end - 2;
+    }
+    return std::string::npos;
+  };
+  const std::size_t scan = last(0xda, 0);
+  return scan == std::string::npos || last(0xd9, scan + 2) == std::string::npos;
+}
+
+cv::Mat loadGreyImage(const std::string& path, const std::string& field, const PinholeCamera& camera,
+                      const ImageFileReader& read) {
+  const cv::Mat raw = readImageFile(path, field, camera, read);
   if (raw.depth() != CV_8U || (raw.channels() != 1 && raw.channels() != 3 && raw.channels() != 4)) {
     throw InputError(path + ": must be an 8-bit grey or colour image, got " + matDescription(raw) + " (" + field + ")");
   }
@@ -414,8 +310,8 @@ cv::Mat loadGreyImage(const std::string& path, const std::string& field, const P
 }
 
 cv::Mat loadDepthImage(const std::string& path, const std::string& field, const PinholeCamera& camera,
-                       double depth_scale) {
-  const cv::Mat raw = readImageFile(path, field, camera);
+                       double depth_scale, const ImageFileReader& read) {
+  const cv::Mat raw = readImageFile(path, field, camera, read);
   if (raw.type() != CV_16UC1) {
     throw InputError(path + ": depth image must be 16-bit single-channel, got " + matDescription(raw) + " (" + field +
                      ")");
@@ -456,7 +352,106 @@ void checkIntrinsics(const FieldReader& reader, const Fields& cam, const Pinhole
   }
 }
 
-AgentMap readBundle(const std::string& dir, const InputLimits& limits, std::vector<std::string>* warnings) {
+PinholeCamera parseCamera(const FieldReader& reader, const Fields& top, const InputLimits& limits) {
+  const Fields cam = reader.fields(reader.require(top, "camera"), "camera", {"fx", "fy", "cx", "cy", "width", "height"});
+  PinholeCamera camera;
+  camera.fx = reader.positive(reader.require(cam, "fx"), "camera.fx");
+  camera.fy = reader.positive(reader.require(cam, "fy"), "camera.fy");
+  camera.cx = reader.number(reader.require(cam, "cx"), "camera.cx");
+  camera.cy = reader.number(reader.require(cam, "cy"), "camera.cy");
+  camera.width = reader.positiveInt(reader.require(cam, "width"), "camera.width");
+  camera.height = reader.positiveInt(reader.require(cam, "height"), "camera.height");
+  checkIntrinsics(reader, cam, camera);
+  const long long pixels = static_cast<long long>(camera.width) * camera.height;
+  if (pixels > limits.max_image_pixels) {
+    reader.fail("camera.width", cam.node,
+                "camera.width x camera.height = " + std::to_string(pixels) +
+                    " px, more than limits.max_image_pixels = " + std::to_string(limits.max_image_pixels));
+  }
+  return camera;
+}
+
+/// keyframes[i] of bundle.yaml (`field`); its id must not be in `first_index` (id -> index).
+KeyframeSpec parseKeyframeSpec(const FieldReader& reader, const YAML::Node& node, const std::string& field,
+                               std::size_t index, std::map<long long, std::size_t>* first_index) {
+  const Fields kf = reader.fields(node, field, {"id", "image", "pose", "depth", "depth_scale"});
+  KeyframeSpec spec;
+  const YAML::Node& id_node = reader.require(kf, "id");
+  const long long id = reader.integer(id_node, child(field, "id"));
+  const auto seen = first_index->find(id);
+  if (seen != first_index->end()) {
+    reader.fail(child(field, "id"), id_node,
+                "duplicate keyframe id " + std::to_string(id) + " (also keyframes[" + std::to_string(seen->second) +
+                    "].id)");
+  }
+  first_index->emplace(id, index);
+  spec.id = static_cast<long>(id);
+  spec.image = reader.text(reader.require(kf, "image"), child(field, "image"));
+
+  const std::string pose_field = child(field, "pose");
+  const Fields pose = reader.fields(reader.require(kf, "pose"), pose_field, {"position", "orientation", "scale"});
+  const Eigen::Vector3d position = reader.vector3(reader.require(pose, "position"), child(pose_field, "position"));
+  const Eigen::Quaterniond q = reader.quaternion(reader.require(pose, "orientation"), child(pose_field, "orientation"));
+  double scale = 1.0;
+  if (const YAML::Node* s = pose.find("scale")) scale = reader.positive(*s, child(pose_field, "scale"));
+  spec.pose = Sim3(scale, q, position);
+
+  const YAML::Node* depth = kf.find("depth");
+  const YAML::Node* depth_scale = kf.find("depth_scale");
+  if (depth_scale != nullptr) spec.depth_scale = reader.positive(*depth_scale, child(field, "depth_scale"));
+  if (depth != nullptr) {
+    spec.depth = reader.text(*depth, child(field, "depth"));
+    if (depth_scale == nullptr) reader.fail(child(field, "depth_scale"), kf.node, "required when depth is given");
+  }
+  return spec;
+}
+
+std::vector<KeyframeSpec> parseKeyframeSpecs(const FieldReader& reader, const Fields& top, const InputLimits& limits) {
+  const YAML::Node& keyframes = reader.require(top, "keyframes");
+  if (!keyframes.IsSequence()) {
+    reader.fail("keyframes", keyframes, "must be a list of keyframes, got " + describe(keyframes));
+  }
+  if (keyframes.size() == 0) reader.fail("keyframes", keyframes, "no keyframes (need at least one)");
+  if (static_cast<std::int64_t>(keyframes.size()) > limits.max_keyframes) {
+    reader.fail("keyframes", keyframes,
+                std::to_string(keyframes.size()) + " keyframes, more than limits.max_keyframes = " +
+                    std::to_string(limits.max_keyframes));
+  }
+  std::vector<KeyframeSpec> specs;
+  std::map<long long, std::size_t> first_index;
+  for (std::size_t i = 0; i < keyframes.size(); ++i) {
+    specs.push_back(parseKeyframeSpec(reader, keyframes[i], element("keyframes", i), i, &first_index));
+  }
+  return specs;
+}
+
+/// The keyframes' image and depth files, read once the whole YAML is known to be valid.
+std::vector<MapKeyframe> readKeyframeFiles(const fs::path& base, const std::string& yaml_path,
+                                           const std::vector<KeyframeSpec>& specs, const PinholeCamera& camera,
+                                           const ImageFileReader& read) {
+  std::vector<MapKeyframe> keyframes;
+  keyframes.reserve(specs.size());
+  for (std::size_t i = 0; i < specs.size(); ++i) {
+    const KeyframeSpec& spec = specs[i];
+    const std::string field = element("keyframes", i);
+    MapKeyframe kf;
+    kf.id = spec.id;
+    kf.pose = spec.pose;
+    try {
+      kf.image = loadGreyImage((base / spec.image).string(), child(field, "image"), camera, read);
+      if (!spec.depth.empty()) {
+        kf.depth = loadDepthImage((base / spec.depth).string(), child(field, "depth"), camera, spec.depth_scale, read);
+      }
+    } catch (const cv::Exception& e) {
+      throw InputError(oneLine(yaml_path + ": " + field + ": image conversion failed: " + e.what(), 400));
+    }
+    keyframes.push_back(std::move(kf));
+  }
+  return keyframes;
+}
+
+AgentMap readBundle(const std::string& dir, const InputLimits& limits, std::vector<std::string>* warnings,
+                    const ImageFileReader& read) {
   std::error_code ec;
   if (!fs::exists(dir, ec)) throw InputError(dir + ": " + missingFileReason(ec, "bundle directory not found"));
   if (!fs::is_directory(dir, ec))
@@ -474,71 +469,10 @@ AgentMap readBundle(const std::string& dir, const InputLimits& limits, std::vect
   try {
     if (root.IsNull()) reader.fail("", root, "empty document (expected a map with cloud, camera, keyframes)");
     const Fields top = reader.fields(root, "", {"frame_id", "cloud", "camera", "keyframes"});
-
     if (const YAML::Node* frame = top.find("frame_id")) map.frame_id = reader.text(*frame, "frame_id");
     cloud_file = reader.text(reader.require(top, "cloud"), "cloud");
-
-    const Fields cam =
-        reader.fields(reader.require(top, "camera"), "camera", {"fx", "fy", "cx", "cy", "width", "height"});
-    map.camera.fx = reader.positive(reader.require(cam, "fx"), "camera.fx");
-    map.camera.fy = reader.positive(reader.require(cam, "fy"), "camera.fy");
-    map.camera.cx = reader.number(reader.require(cam, "cx"), "camera.cx");
-    map.camera.cy = reader.number(reader.require(cam, "cy"), "camera.cy");
-    map.camera.width = reader.positiveInt(reader.require(cam, "width"), "camera.width");
-    map.camera.height = reader.positiveInt(reader.require(cam, "height"), "camera.height");
-    checkIntrinsics(reader, cam, map.camera);
-    const long long pixels = static_cast<long long>(map.camera.width) * map.camera.height;
-    if (pixels > limits.max_image_pixels) {
-      reader.fail("camera.width", cam.node,
-                  "camera.width x camera.height = " + std::to_string(pixels) +
-                      " px, more than limits.max_image_pixels = " + std::to_string(limits.max_image_pixels));
-    }
-
-    const YAML::Node& keyframes = reader.require(top, "keyframes");
-    if (!keyframes.IsSequence()) {
-      reader.fail("keyframes", keyframes, "must be a list of keyframes, got " + describe(keyframes));
-    }
-    if (keyframes.size() == 0) reader.fail("keyframes", keyframes, "no keyframes (need at least one)");
-    if (static_cast<std::int64_t>(keyframes.size()) > limits.max_keyframes) {
-      reader.fail("keyframes", keyframes,
-                  std::to_string(keyframes.size()) + " keyframes, more than limits.max_keyframes = " +
-                      std::to_string(limits.max_keyframes));
-    }
-    std::map<long long, std::size_t> first_index;
-    for (std::size_t i = 0; i < keyframes.size(); ++i) {
-      const std::string field = element("keyframes", i);
-      const Fields kf = reader.fields(keyframes[i], field, {"id", "image", "pose", "depth", "depth_scale"});
-      KeyframeSpec spec;
-      const YAML::Node& id_node = reader.require(kf, "id");
-      const long long id = reader.integer(id_node, child(field, "id"));
-      const auto seen = first_index.find(id);
-      if (seen != first_index.end()) {
-        reader.fail(child(field, "id"), id_node,
-                    "duplicate keyframe id " + std::to_string(id) + " (also keyframes[" + std::to_string(seen->second) +
-                        "].id)");
-      }
-      first_index.emplace(id, i);
-      spec.id = static_cast<long>(id);
-      spec.image = reader.text(reader.require(kf, "image"), child(field, "image"));
-
-      const std::string pose_field = child(field, "pose");
-      const Fields pose = reader.fields(reader.require(kf, "pose"), pose_field, {"position", "orientation", "scale"});
-      const Eigen::Vector3d position = reader.vector3(reader.require(pose, "position"), child(pose_field, "position"));
-      const Eigen::Quaterniond q =
-          reader.quaternion(reader.require(pose, "orientation"), child(pose_field, "orientation"));
-      double scale = 1.0;
-      if (const YAML::Node* s = pose.find("scale")) scale = reader.positive(*s, child(pose_field, "scale"));
-      spec.pose = Sim3(scale, q, position);
-
-      const YAML::Node* depth = kf.find("depth");
-      const YAML::Node* depth_scale = kf.find("depth_scale");
-      if (depth_scale != nullptr) spec.depth_scale = reader.positive(*depth_scale, child(field, "depth_scale"));
-      if (depth != nullptr) {
-        spec.depth = reader.text(*depth, child(field, "depth"));
-        if (depth_scale == nullptr) reader.fail(child(field, "depth_scale"), kf.node, "required when depth is given");
-      }
-      specs.push_back(spec);
-    }
+    map.camera = parseCamera(reader, top, limits);
+    specs = parseKeyframeSpecs(reader, top, limits);
   } catch (const YAML::Exception& e) {
     // Safety net: yaml-cpp errors not caught by the checks above still name the file.
     throw InputError(oneLine(yaml_path + ": " + e.what(), 400));
@@ -552,24 +486,7 @@ AgentMap readBundle(const std::string& dir, const InputLimits& limits, std::vect
   } catch (const InputError& e) {
     throw InputError(std::string(e.what()) + " (cloud)");
   }
-
-  map.keyframes.reserve(specs.size());
-  for (std::size_t i = 0; i < specs.size(); ++i) {
-    const KeyframeSpec& spec = specs[i];
-    const std::string field = element("keyframes", i);
-    MapKeyframe kf;
-    kf.id = spec.id;
-    kf.pose = spec.pose;
-    try {
-      kf.image = loadGreyImage((base / spec.image).string(), child(field, "image"), map.camera);
-      if (!spec.depth.empty()) {
-        kf.depth = loadDepthImage((base / spec.depth).string(), child(field, "depth"), map.camera, spec.depth_scale);
-      }
-    } catch (const cv::Exception& e) {
-      throw InputError(oneLine(yaml_path + ": " + field + ": image conversion failed: " + e.what(), 400));
-    }
-    map.keyframes.push_back(std::move(kf));
-  }
+  map.keyframes = readKeyframeFiles(base, yaml_path, specs, map.camera, read);
   return map;
 }
 
@@ -605,9 +522,22 @@ BundleTruth readTruth(const std::string& path) {
 
 }  // namespace
 
-AgentMap loadBundle(const std::string& dir, const InputLimits& limits, std::vector<std::string>* warnings) {
+cv::Mat decodeImageFile(const std::string& path, const cv::Size& /*expected_size*/) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path + ": cannot open file (unreadable)");
+  const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  // libjpeg decodes a JPEG cut short with a warning on stderr only: refuse it here instead.
+  const bool jpeg = bytes.size() >= 3 && bytes[0] == 0xff && bytes[1] == 0xd8 && bytes[2] == 0xff;
+  if (jpeg && jpegCutShort(bytes)) throw InputError(path + ": cannot read image: truncated JPEG");
+  cv::Mat image = cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
+  if (image.empty()) throw InputError(path + ": cannot read image");
+  return image;
+}
+
+AgentMap loadBundle(const std::string& dir, const InputLimits& limits, std::vector<std::string>* warnings,
+                    const ImageFileReader& read_image) {
   try {
-    return readBundle(dir, limits, warnings);
+    return readBundle(dir, limits, warnings, read_image);
   } catch (const InputError& e) {
     // File names and YAML text end up in messages: keep them on one line.
     throw InputError(oneLine(e.what(), 1000));

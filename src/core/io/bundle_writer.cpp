@@ -15,12 +15,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string num(double v) {
-  std::ostringstream s;
-  s.precision(12);
-  s << v;
-  return s.str();
-}
+std::string num(double v) { return yamlNumber(v); }
 
 std::string vec(std::initializer_list<double> values) {
   std::string out = "[";
@@ -157,6 +152,13 @@ void writeBundleTruth(const std::string& path, const BundleTruth& truth, const s
   std::ofstream out(path);
   out << y.str();
   if (!out) throw InputError(path + ": cannot write file");
+}
+
+std::string yamlNumber(double v) {
+  std::ostringstream s;
+  s.precision(12);
+  s << v;
+  return s.str();
 }
 
 }  // namespace pcr_pro

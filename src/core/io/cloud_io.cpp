@@ -230,6 +230,93 @@ PcdHeader parsePcdHeader(const std::string& buf, std::size_t* data_start, const 
   return h;
 }
 
+// The x y z of every row of an ascii PCD body (from data_start), appended to xyz.
+void readAsciiXyz(const std::string& buf, std::size_t data_start, const PcdHeader& h, const int (&idx)[3],
+                  const std::string& path, std::vector<double>* xyz) {
+  // Column index of each field's first element in an ascii row.
+  std::vector<std::size_t> col(h.fields.size());
+  std::size_t ncols = 0;
+  for (std::size_t i = 0; i < h.fields.size(); ++i) {
+    col[i] = ncols;
+    ncols += h.fields[i].count;
+  }
+  std::size_t pos = data_start, row = 0;
+  std::vector<std::string> tok;
+  while (pos < buf.size() && row < h.points) {
+    std::size_t eol = buf.find('\n', pos);
+    if (eol == std::string::npos) eol = buf.size();
+    std::istringstream ls(buf.substr(pos, eol - pos));
+    pos = eol + 1;
+    tok.clear();
+    for (std::string t; ls >> t;) tok.push_back(t);
+    if (tok.empty()) continue;
+    if (tok.size() < ncols) {
+      throw InputError(path + ": PCD ascii row " + std::to_string(row + 1) + " has " + std::to_string(tok.size()) +
+                       " values, expected " + std::to_string(ncols));
+    }
+    for (int k : idx) {
+      const std::string& t = tok[col[k]];
+      char* end = nullptr;
+      double v = std::strtod(t.c_str(), &end);
+      if (end == t.c_str() || *end != '\0') {
+        if (lower(t) == "nan") v = std::numeric_limits<double>::quiet_NaN();
+        else throw InputError(path + ": PCD ascii row " + std::to_string(row + 1) + " has a non-number '" + printable(t) + "'");
+      }
+      xyz->push_back(v);
+    }
+    ++row;
+  }
+  if (row < h.points) {
+    throw InputError(path + ": PCD truncated: " + std::to_string(row) + " of " + std::to_string(h.points) + " points");
+  }
+}
+
+// The x y z of a binary PCD body (array of structures), appended to xyz.
+void readBinaryXyz(const std::string& buf, std::size_t data_start, const PcdHeader& h, const int (&idx)[3],
+                   const std::string& path, std::vector<double>* xyz) {
+  const std::size_t need = h.points * h.point_step;
+  if (buf.size() - data_start < need) {
+    throw InputError(path + ": PCD binary data truncated (" + std::to_string(buf.size() - data_start) + " of " +
+                     std::to_string(need) + " bytes)");
+  }
+  const auto* base = reinterpret_cast<const unsigned char*>(buf.data()) + data_start;
+  for (std::size_t i = 0; i < h.points; ++i) {
+    for (int k : idx) xyz->push_back(decodeBinary(base + i * h.point_step + h.fields[k].offset, h.fields[k]));
+  }
+}
+
+// The x y z of a binary_compressed PCD body (LZF, structure of arrays), appended to xyz.
+void readCompressedXyz(const std::string& buf, std::size_t data_start, const PcdHeader& h, const int (&idx)[3],
+                       const std::string& path, std::vector<double>* xyz) {
+  if (buf.size() - data_start < 8) throw InputError(path + ": PCD compressed data truncated (no size header)");
+  uint32_t csize = 0, usize = 0;
+  std::memcpy(&csize, buf.data() + data_start, 4);
+  std::memcpy(&usize, buf.data() + data_start + 4, 4);
+  const std::size_t need = h.points * h.point_step;
+  if (usize != need) throw InputError(path + ": PCD compressed data size disagrees with the header");
+  if (buf.size() - data_start - 8 < csize) throw InputError(path + ": PCD compressed data truncated");
+  // Checked before allocating: csize bytes of LZF cannot expand beyond 88 x csize.
+  if (need / kMaxLzfExpansion > csize) throw InputError(path + ": PCD compressed data is corrupt (sizes)");
+  std::vector<unsigned char> raw(need);
+  if (need > 0 &&
+      !lzfDecompress(reinterpret_cast<const unsigned char*>(buf.data()) + data_start + 8, csize, raw.data(), need)) {
+    throw InputError(path + ": PCD compressed data is corrupt");
+  }
+  // binary_compressed stores each field as a contiguous array (structure of arrays).
+  std::vector<std::size_t> soa_offset(h.fields.size());
+  std::size_t off = 0;
+  for (std::size_t i = 0; i < h.fields.size(); ++i) {
+    soa_offset[i] = off;
+    off += h.points * h.fields[i].size * h.fields[i].count;
+  }
+  for (std::size_t i = 0; i < h.points; ++i) {
+    for (int k : idx) {
+      const PcdField& f = h.fields[k];
+      xyz->push_back(decodeBinary(raw.data() + soa_offset[k] + i * f.size * f.count, f));
+    }
+  }
+}
+
 }  // namespace
 
 Cloud parsePcd(const std::string& buf, const std::string& path, const InputLimits& limits) {
@@ -260,80 +347,11 @@ Cloud parsePcd(const std::string& buf, const std::string& path, const InputLimit
   xyz.reserve(3 * std::min<std::size_t>(h.points, data_bytes / std::max<std::size_t>(h.point_step, 1) + 1));
 
   if (h.data == "ascii") {
-    // Column index of each field's first element in an ascii row.
-    std::vector<std::size_t> col(h.fields.size());
-    std::size_t ncols = 0;
-    for (std::size_t i = 0; i < h.fields.size(); ++i) {
-      col[i] = ncols;
-      ncols += h.fields[i].count;
-    }
-    std::size_t pos = data_start, row = 0;
-    std::vector<std::string> tok;
-    while (pos < buf.size() && row < h.points) {
-      std::size_t eol = buf.find('\n', pos);
-      if (eol == std::string::npos) eol = buf.size();
-      std::istringstream ls(buf.substr(pos, eol - pos));
-      pos = eol + 1;
-      tok.clear();
-      for (std::string t; ls >> t;) tok.push_back(t);
-      if (tok.empty()) continue;
-      if (tok.size() < ncols) {
-        throw InputError(path + ": PCD ascii row " + std::to_string(row + 1) + " has " + std::to_string(tok.size()) +
-                         " values, expected " + std::to_string(ncols));
-      }
-      for (int k : idx) {
-        const std::string& t = tok[col[k]];
-        char* end = nullptr;
-        double v = std::strtod(t.c_str(), &end);
-        if (end == t.c_str() || *end != '\0') {
-          if (lower(t) == "nan") v = std::numeric_limits<double>::quiet_NaN();
-          else throw InputError(path + ": PCD ascii row " + std::to_string(row + 1) + " has a non-number '" + printable(t) + "'");
-        }
-        xyz.push_back(v);
-      }
-      ++row;
-    }
-    if (row < h.points) {
-      throw InputError(path + ": PCD truncated: " + std::to_string(row) + " of " + std::to_string(h.points) + " points");
-    }
+    readAsciiXyz(buf, data_start, h, idx, path, &xyz);
   } else if (h.data == "binary") {
-    const std::size_t need = h.points * h.point_step;
-    if (buf.size() - data_start < need) {
-      throw InputError(path + ": PCD binary data truncated (" + std::to_string(buf.size() - data_start) + " of " +
-                       std::to_string(need) + " bytes)");
-    }
-    const auto* base = reinterpret_cast<const unsigned char*>(buf.data()) + data_start;
-    for (std::size_t i = 0; i < h.points; ++i) {
-      for (int k : idx) xyz.push_back(decodeBinary(base + i * h.point_step + h.fields[k].offset, h.fields[k]));
-    }
+    readBinaryXyz(buf, data_start, h, idx, path, &xyz);
   } else if (h.data == "binary_compressed") {
-    if (buf.size() - data_start < 8) throw InputError(path + ": PCD compressed data truncated (no size header)");
-    uint32_t csize = 0, usize = 0;
-    std::memcpy(&csize, buf.data() + data_start, 4);
-    std::memcpy(&usize, buf.data() + data_start + 4, 4);
-    const std::size_t need = h.points * h.point_step;
-    if (usize != need) throw InputError(path + ": PCD compressed data size disagrees with the header");
-    if (buf.size() - data_start - 8 < csize) throw InputError(path + ": PCD compressed data truncated");
-    // Checked before allocating: csize bytes of LZF cannot expand beyond 88 x csize.
-    if (need / kMaxLzfExpansion > csize) throw InputError(path + ": PCD compressed data is corrupt (sizes)");
-    std::vector<unsigned char> raw(need);
-    if (need > 0 &&
-        !lzfDecompress(reinterpret_cast<const unsigned char*>(buf.data()) + data_start + 8, csize, raw.data(), need)) {
-      throw InputError(path + ": PCD compressed data is corrupt");
-    }
-    // binary_compressed stores each field as a contiguous array (structure of arrays).
-    std::vector<std::size_t> soa_offset(h.fields.size());
-    std::size_t off = 0;
-    for (std::size_t i = 0; i < h.fields.size(); ++i) {
-      soa_offset[i] = off;
-      off += h.points * h.fields[i].size * h.fields[i].count;
-    }
-    for (std::size_t i = 0; i < h.points; ++i) {
-      for (int k : idx) {
-        const PcdField& f = h.fields[k];
-        xyz.push_back(decodeBinary(raw.data() + soa_offset[k] + i * f.size * f.count, f));
-      }
-    }
+    readCompressedXyz(buf, data_start, h, idx, path, &xyz);
   } else {
     throw InputError(path + ": PCD DATA type '" + printable(h.data) + "' is not supported");
   }

@@ -18,14 +18,20 @@ double msSince(std::chrono::steady_clock::time_point start) {
 
 RegistrationReport registerClouds(const Cloud& source, const Cloud& target, const std::optional<Sim3>& initial,
                                   const RegistrationOptions& options, const KdTree* target_tree) {
+  // Caller's mistakes throw (error rule, pcr_pro.h): invalid options, a tree for another cloud.
   validate(options);
-  if (source.cols() == 0) throw InputError("source cloud is empty");
-  if (target.cols() == 0) throw InputError("target cloud is empty");
   if (target_tree && (!options.filters.steps.empty() || target_tree->size() != target.cols())) {
     throw InputError("registerClouds: a target k-d tree needs an empty filter chain and the target's points");
   }
   const auto t_total = std::chrono::steady_clock::now();
   RegistrationReport report;
+  // What the data does is a status: an empty cloud, like one the filters empty, is INVALID_INPUT.
+  if (source.cols() == 0 || target.cols() == 0) {
+    report.status = Status::kInvalidInput;
+    report.message = std::string(source.cols() == 0 ? "source" : "target") + " cloud is empty";
+    report.timings.total = msSince(t_total);
+    return report;
+  }
 
   auto t = std::chrono::steady_clock::now();
   const ScaleDetectionResult detection = detectScale(source, target, options.scale_detection);

@@ -43,16 +43,6 @@ Matrix7d centroidToOrigin(const Eigen::Vector3d& c, double rho) {
 
 const char* kDirectionNames[7] = {"x", "y", "z", "rot_x", "rot_y", "rot_z", "scale"};
 
-// Left-perturbation pose difference δ with a = exp(δ) b, to first order (x y z rot_x rot_y rot_z).
-Vector6d poseDifference(const Sim3& a, const Sim3& b) {
-  const Eigen::Matrix3d dr = a.rotation() * b.rotation().transpose();
-  const Eigen::AngleAxisd aa(dr);
-  Vector6d d;
-  d.head<3>() = a.translation() - (a.scale() / b.scale()) * dr * b.translation();
-  d.tail<3>() = aa.angle() * aa.axis();
-  return d;
-}
-
 // The distinct matched target points (several source points may share one).
 Cloud distinctTargets(const Cloud& targets) {
   struct Hash {

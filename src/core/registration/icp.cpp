@@ -643,6 +643,64 @@ IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial
   return alignIcp(source, tree, initial, o);
 }
 
+namespace {
+
+// Coarse levels: most of the travel from the initial guess on small samples (coarse_source_points,
+// then four times as many, ...), each to a looser differential check; the whole sample then
+// only has to settle the last digits. @return the iterations they took
+int iterateCoarseLevels(const Cloud& source, const LevelEnv& env, const IcpOptions& o, Sim3* current) {
+  int iter = 0;
+  if (o.coarse_source_points > 0) {
+    for (Eigen::Index n = o.coarse_source_points; 2 * n < source.cols(); n *= 4) {
+      MaxPointsOptions coarse_sampling;
+      coarse_sampling.max_points = static_cast<int>(n);
+      const Cloud coarse = maxPointsFilter(source, coarse_sampling);
+      const LevelOutcome c = iterateLevel(coarse, env, kCoarseToleranceFactor, iter, current);
+      iter += c.iterations;
+      // A failed coarse level (e.g. too few correspondences on a small sample) leaves the
+      // decision to the larger samples, from the last good pose.
+    }
+  }
+  return iter;
+}
+
+// The final pairs as the covariance takes them: source point, target point, target normal and
+// weight per pair. @return the sum of their squared distances
+double fillMatches(const PlaneSet& set, const Cloud& source, const Cloud& target, Correspondences* c) {
+  const auto count = static_cast<Eigen::Index>(set.size());
+  c->source.resize(3, count);
+  c->target.resize(3, count);
+  c->target_normals.resize(3, count);
+  c->weights.resize(count);
+  double sum_d2 = 0.0;
+  for (std::size_t k = 0; k < set.size(); ++k) {
+    const auto col = static_cast<Eigen::Index>(k);
+    c->source.col(col) = source.col(set.source[k]);
+    c->target.col(col) = target.col(set.target[k]);
+    c->target_normals.col(col) = set.normal[k];
+    c->weights(col) = set.weight[k];
+    sum_d2 += set.d2[k];
+  }
+  return sum_d2;
+}
+
+// The status at the final pose: enough correspondences and converged, or why not.
+void setFinalStatus(std::size_t correspondences, bool converged, int iterations, const IcpOptions& o,
+                    IcpResult* result) {
+  if (static_cast<int>(correspondences) < o.min_correspondences) {
+    result->status = Status::kIcpNotConverged;
+    result->message = "icp: too few correspondences at the final pose";
+  } else if (!converged) {
+    result->status = Status::kIcpNotConverged;
+    result->message = "icp: no convergence within " + std::to_string(o.max_iterations) + " iterations on the full sample";
+  } else {
+    result->status = Status::kOk;
+    result->message = "icp converged in " + std::to_string(iterations) + " iterations";
+  }
+}
+
+}  // namespace
+
 IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initial, const IcpOptions& o,
                    const std::vector<PointMatch3>* anchors) {
   validate(o);
@@ -663,21 +721,7 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   env.anchors = anchors && !anchors->empty() ? anchors : nullptr;
 
   Sim3 current = initial;
-  int iter = 0;
-  // Coarse levels: most of the travel from the initial guess on small samples (coarse_source_points,
-  // then four times as many, ...), each to a looser differential check; the whole sample then
-  // only has to settle the last digits.
-  if (o.coarse_source_points > 0) {
-    for (Eigen::Index n = o.coarse_source_points; 2 * n < source.cols(); n *= 4) {
-      MaxPointsOptions coarse_sampling;
-      coarse_sampling.max_points = static_cast<int>(n);
-      const Cloud coarse = maxPointsFilter(source, coarse_sampling);
-      const LevelOutcome c = iterateLevel(coarse, env, kCoarseToleranceFactor, iter, &current);
-      iter += c.iterations;
-      // A failed coarse level (e.g. too few correspondences on a small sample) leaves the
-      // decision to the larger samples, from the last good pose.
-    }
-  }
+  int iter = iterateCoarseLevels(source, env, o, &current);
   const LevelOutcome fine = iterateLevel(source, env, 1.0, iter, &current);
   iter += fine.iterations;
   if (fine.failed) {
@@ -728,34 +772,12 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   result.converged = converged;
   result.correspondences = static_cast<int>(set.size());
   Correspondences& c = result.matches;
-  const auto count = static_cast<Eigen::Index>(set.size());
-  c.source.resize(3, count);
-  c.target.resize(3, count);
-  c.target_normals.resize(3, count);
-  c.weights.resize(count);
   c.residual_scale = spread;
   c.spacing = ctx.spacing;
   c.redundancy = symmetric && !reverse.empty() ? 2.0 : 1.0;
-  double sum_d2 = 0.0;
-  for (std::size_t k = 0; k < set.size(); ++k) {
-    const auto col = static_cast<Eigen::Index>(k);
-    c.source.col(col) = source.col(set.source[k]);
-    c.target.col(col) = target.col(set.target[k]);
-    c.target_normals.col(col) = set.normal[k];
-    c.weights(col) = set.weight[k];
-    sum_d2 += set.d2[k];
-  }
+  const double sum_d2 = fillMatches(set, source, target, &c);
   result.fitness_rmse = set.size() == 0 ? 0.0 : std::sqrt(sum_d2 / static_cast<double>(set.size()));
-  if (static_cast<int>(set.size()) < o.min_correspondences) {
-    result.status = Status::kIcpNotConverged;
-    result.message = "icp: too few correspondences at the final pose";
-  } else if (!converged) {
-    result.status = Status::kIcpNotConverged;
-    result.message = "icp: no convergence within " + std::to_string(o.max_iterations) + " iterations on the full sample";
-  } else {
-    result.status = Status::kOk;
-    result.message = "icp converged in " + std::to_string(iter) + " iterations";
-  }
+  setFinalStatus(set.size(), converged, iter, o, &result);
   return result;
 }
 

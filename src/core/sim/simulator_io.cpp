@@ -11,12 +11,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string num(double v) {
-  std::ostringstream s;
-  s.precision(12);
-  s << v;
-  return s.str();
-}
+std::string num(double v) { return yamlNumber(v); }
 
 std::string pairFile(const Simulation& sim, const SimPairTruth& p) {
   return "truth_" + sim.agents[static_cast<std::size_t>(p.target)].name + "_" +

@@ -103,12 +103,7 @@ std::string summary(const pcr_pro::Simulation& sim, const std::string& dir, bool
 }
 
 int run(int argc, char** argv) {
-  for (int i = 1; i < argc; ++i) {
-    if (std::string(argv[i]) == "--help" || std::string(argv[i]) == "-h") {
-      std::cout << kUsage;
-      return 0;
-    }
-  }
+  if (pcr_pro::tools::printedHelp(argc, argv, kUsage)) return 0;
   const pcr_pro::tools::Arguments args(
       argc, argv,
       {"--output", "--nodepth-output", "--config", "--seed", "--agents", "--overlap", "--view-angle", "--scale-drift",

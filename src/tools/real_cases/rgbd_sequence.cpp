@@ -67,13 +67,7 @@ PinholeCamera readIntrinsics(const std::string& path, int width, int height) {
   for (int i = 0; i < 9; ++i) {
     if (!(in >> k(i / 3, i % 3))) throw InputError(path + ": expected a 3x3 camera matrix");
   }
-  PinholeCamera camera;
-  camera.fx = k(0, 0);
-  camera.fy = k(1, 1);
-  camera.cx = k(0, 2);
-  camera.cy = k(1, 2);
-  camera.width = width;
-  camera.height = height;
+  const PinholeCamera camera{k(0, 0), k(1, 1), k(0, 2), k(1, 2), width, height};  // fx fy cx cy width height
   if (!camera.valid()) throw InputError(path + ": invalid camera matrix");
   return camera;
 }
@@ -196,13 +190,7 @@ RgbdSequence openSevenScenes(const std::string& dir) {
 RgbdSequence openSlambook2(const std::string& dir) {
   // The intrinsics are not in the data's files: slambook2 ch5/rgbd/joinMap.cpp gives them
   // (quoted in SOURCE.txt), for 640x480 frames.
-  PinholeCamera camera;
-  camera.fx = 518.0;
-  camera.fy = 519.0;
-  camera.cx = 325.5;
-  camera.cy = 253.5;
-  camera.width = 640;
-  camera.height = 480;
+  const PinholeCamera camera{518.0, 519.0, 325.5, 253.5, 640, 480};  // fx fy cx cy width height
   const std::string pose_path = (fs::path(dir) / "pose.txt").string();
   std::ifstream in(pose_path);
   if (!in) throw InputError(pose_path + ": cannot open");
