@@ -108,12 +108,13 @@ void validate(const ScaleEstimationOptions& o) {
   checkRanges(paramSchema<ScaleEstimationOptions>(), o);
 }
 
-ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
-                            const std::vector<Eigen::Vector3d>& points_target, const Eigen::Matrix3d& R,
-                            const Eigen::Vector3d& t_hat, const ScaleEstimationOptions& options,
-                            const std::vector<Eigen::Matrix3d>* covariances_source,
-                            const std::vector<Eigen::Matrix3d>* covariances_target) {
-  validate(options);
+namespace {
+
+// Throws InputError on mismatched sizes, a non-rotation R or a non-unit t_hat.
+void checkScaleInputs(const std::vector<Eigen::Vector3d>& points_source,
+                      const std::vector<Eigen::Vector3d>& points_target, const Eigen::Matrix3d& R,
+                      const Eigen::Vector3d& t_hat, const std::vector<Eigen::Matrix3d>* covariances_source,
+                      const std::vector<Eigen::Matrix3d>* covariances_target) {
   if (points_source.size() != points_target.size()) {
     throw InputError("scale estimation: " + std::to_string(points_source.size()) + " source points but " +
                      std::to_string(points_target.size()) + " target points");
@@ -131,18 +132,15 @@ ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
   if (!t_hat.allFinite() || !(std::abs(t_hat.norm() - 1.0) <= kUnitTolerance)) {
     throw InputError("scale estimation: t_hat must be a finite unit vector");
   }
+}
 
-  ScaleEstimate result;
+// Usable matches (finite, non-zero points) and their noise.
+std::vector<Match> usableMatches(const std::vector<Eigen::Vector3d>& points_source,
+                                 const std::vector<Eigen::Vector3d>& points_target, const Eigen::Matrix3d& R,
+                                 const ScaleEstimationOptions& options,
+                                 const std::vector<Eigen::Matrix3d>* covariances_source,
+                                 const std::vector<Eigen::Matrix3d>* covariances_target) {
   const size_t n = points_source.size();
-  result.inlier_mask.assign(n, false);
-  if (n < static_cast<size_t>(options.min_inliers)) {
-    result.status = Status::kNotEnoughMatches;
-    result.message = "scale estimation: " + std::to_string(n) + " matches, at least " +
-                     std::to_string(options.min_inliers) + " needed";
-    return result;
-  }
-
-  // Usable matches and their noise.
   const double sigma_d = options.relative_depth_noise;
   const double sigma_l = options.relative_lateral_noise;
   std::vector<Match> matches;
@@ -163,17 +161,14 @@ ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
     if (!m.a.allFinite() || !m.cov_t.allFinite() || !m.cov_s.allFinite()) continue;
     matches.push_back(m);
   }
-  result.used = static_cast<int>(matches.size());
-  if (result.used < options.min_inliers) {
-    result.status = Status::kNotEnoughMatches;
-    result.message = "scale estimation: " + std::to_string(result.used) + " usable matches (finite, non-zero " +
-                     "points) of " + std::to_string(n) + ", at least " + std::to_string(options.min_inliers) +
-                     " needed";
-    return result;
-  }
+  return matches;
+}
 
-  // Robust initialisation: median of the per-match least-squares scales, then the median
-  // baseline length at that scale.
+// Robust initialisation: median of the per-match least-squares scales, then the median
+// baseline length at that scale; *distance_scale is the median target distance. False when no
+// match gives a positive scale.
+bool robustStart(const std::vector<Match>& matches, const Eigen::Vector3d& t_hat, Eigen::Vector2d* start,
+                 double* distance_scale) {
   std::vector<double> scales;
   std::vector<double> distances;
   for (const Match& m : matches) {
@@ -185,13 +180,9 @@ ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
     const double s = (m.a.dot(m.z) - at * t_hat.dot(m.z)) / det;
     if (s > 0.0 && std::isfinite(s)) scales.push_back(s);
   }
-  if (scales.empty()) {
-    result.status = Status::kScaleFailed;
-    result.message = "scale estimation: no match gives a positive scale";
-    return result;
-  }
-  const double distance_scale = median(distances);
-  Eigen::Vector2d x_start;
+  if (scales.empty()) return false;
+  *distance_scale = median(distances);
+  Eigen::Vector2d& x_start = *start;
   x_start(0) = median(scales);
   {
     std::vector<double> lambdas;
@@ -199,86 +190,77 @@ ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
     for (const Match& m : matches) lambdas.push_back(t_hat.dot(m.z - x_start(0) * m.a));
     x_start(1) = median(lambdas);
   }
+  return true;
+}
 
-  Eigen::Vector2d x = x_start;
-  Eigen::Matrix2d P = Eigen::Matrix2d::Zero();
-  std::vector<bool> accepted(matches.size(), false);
-  std::vector<size_t> order(matches.size());
-  std::vector<double> start_d2(matches.size());
-  for (int pass = 0; pass < options.passes; ++pass) {
-    if (!(x_start(0) > 0.0 && std::isfinite(x_start(0)) && std::isfinite(x_start(1)))) break;
-    // Most consistent matches first, so that the state is tight before outliers come.
-    for (size_t k = 0; k < matches.size(); ++k) {
-      const Match& m = matches[k];
-      start_d2[k] = mahalanobis2(m.z - measurementMatrix(m, t_hat) * x_start, measurementNoise(m, x_start(0)));
-    }
-    std::iota(order.begin(), order.end(), size_t{0});
-    std::stable_sort(order.begin(), order.end(), [&](size_t i, size_t j) { return start_d2[i] < start_d2[j]; });
-
-    // Broad prior around the starting estimate.
-    const double sigma_s = options.prior_relative_stddev * x_start(0);
-    const double sigma_lambda = options.prior_relative_stddev * std::max(std::abs(x_start(1)), distance_scale);
-    x = x_start;
-    P = Eigen::Vector2d(sigma_s * sigma_s, sigma_lambda * sigma_lambda).asDiagonal();
-    std::fill(accepted.begin(), accepted.end(), false);
-
-    for (size_t k : order) {
-      const Match& m = matches[k];
-      const Matrix32d H = measurementMatrix(m, t_hat);
-      const Eigen::Matrix3d N = measurementNoise(m, x(0));
-      const Eigen::Vector3d innovation = m.z - H * x;
-      const Eigen::Matrix3d S = H * P * H.transpose() + N;
-      if (!S.allFinite() || !innovation.allFinite()) continue;
-      const Eigen::LLT<Eigen::Matrix3d> llt(S);
-      if (llt.info() != Eigen::Success) continue;
-      const double d2 = innovation.dot(llt.solve(innovation));
-      if (!(d2 <= options.gating_chi2)) continue;  // outlier (or NaN)
-      // K = P Hᵀ S⁻¹, Joseph-form covariance update.
-      const Matrix23d K = llt.solve(H * P).transpose();
-      const Eigen::Vector2d x_new = x + K * innovation;
-      const Eigen::Matrix2d I_KH = Eigen::Matrix2d::Identity() - K * H;
-      Eigen::Matrix2d P_new = I_KH * P * I_KH.transpose() + K * N * K.transpose();
-      P_new = 0.5 * (P_new + P_new.transpose()).eval();
-      if (!x_new.allFinite() || !P_new.allFinite()) continue;
-      x = x_new;
-      P = P_new;
-      accepted[k] = true;
-    }
-    // Errors-in-variables correction. The filter solves sum Hᵀ N⁻¹ r = 0 with N evaluated at
-    // the running scale, but H holds the noisy R * P_s, which biases s towards zero by about
-    // s * tr(N⁻¹ C) per match (C = R cov(P_s) Rᵀ, "regression dilution"). The maximum-likelihood
-    // score, with N = N(s) differentiated too, has the extra term s * rᵀ N⁻¹ C N⁻¹ r whose
-    // expectation cancels that bias; one Newton step with the posterior covariance P as inverse
-    // Hessian adds it. It is a second-order effect (about 0.1 % of s for 2 % depth noise), but it
-    // grows relative to the standard deviation as matches accumulate.
-    double score = 0.0;
-    for (size_t k = 0; k < matches.size(); ++k) {
-      if (!accepted[k]) continue;
-      const Match& m = matches[k];
-      const Eigen::Vector3d r = m.z - measurementMatrix(m, t_hat) * x;
-      const Eigen::LLT<Eigen::Matrix3d> llt(measurementNoise(m, x(0)));
-      if (llt.info() != Eigen::Success) continue;
-      const Eigen::Vector3d w = llt.solve(r);
-      score += x(0) * w.dot(m.cov_s * w);
-    }
-    const Eigen::Vector2d x_corrected = x + P.col(0) * score;
-    if (x_corrected.allFinite()) x = x_corrected;
-    x_start = x;
-  }
-
-  result.scale = x(0);
-  result.lambda = x(1);
-  result.covariance = P;
-  result.scale_stddev = std::sqrt(std::max(0.0, P(0, 0)));
-  result.lambda_stddev = std::sqrt(std::max(0.0, P(1, 1)));
-  result.inliers = 0;
+// Most consistent matches first (by Mahalanobis distance at x_start), so that the state is
+// tight before outliers come.
+void consistencyOrder(const std::vector<Match>& matches, const Eigen::Vector3d& t_hat, const Eigen::Vector2d& x_start,
+                      std::vector<size_t>* order, std::vector<double>* start_d2) {
   for (size_t k = 0; k < matches.size(); ++k) {
-    if (accepted[k]) {
-      result.inlier_mask[matches[k].index] = true;
-      ++result.inliers;
-    }
+    const Match& m = matches[k];
+    (*start_d2)[k] = mahalanobis2(m.z - measurementMatrix(m, t_hat) * x_start, measurementNoise(m, x_start(0)));
   }
+  std::iota(order->begin(), order->end(), size_t{0});
+  std::stable_sort(order->begin(), order->end(), [&](size_t i, size_t j) { return (*start_d2)[i] < (*start_d2)[j]; });
+}
 
+// One Kalman sweep over the matches in `order`, gating each innovation; accepted[k] marks the
+// matches used.
+void kalmanSweep(const std::vector<Match>& matches, const std::vector<size_t>& order, const Eigen::Vector3d& t_hat,
+                 const ScaleEstimationOptions& options, Eigen::Vector2d* x_io, Eigen::Matrix2d* P_io,
+                 std::vector<bool>* accepted) {
+  Eigen::Vector2d& x = *x_io;
+  Eigen::Matrix2d& P = *P_io;
+  for (size_t k : order) {
+    const Match& m = matches[k];
+    const Matrix32d H = measurementMatrix(m, t_hat);
+    const Eigen::Matrix3d N = measurementNoise(m, x(0));
+    const Eigen::Vector3d innovation = m.z - H * x;
+    const Eigen::Matrix3d S = H * P * H.transpose() + N;
+    if (!S.allFinite() || !innovation.allFinite()) continue;
+    const Eigen::LLT<Eigen::Matrix3d> llt(S);
+    if (llt.info() != Eigen::Success) continue;
+    const double d2 = innovation.dot(llt.solve(innovation));
+    if (!(d2 <= options.gating_chi2)) continue;  // outlier (or NaN)
+    // K = P Hᵀ S⁻¹, Joseph-form covariance update.
+    const Matrix23d K = llt.solve(H * P).transpose();
+    const Eigen::Vector2d x_new = x + K * innovation;
+    const Eigen::Matrix2d I_KH = Eigen::Matrix2d::Identity() - K * H;
+    Eigen::Matrix2d P_new = I_KH * P * I_KH.transpose() + K * N * K.transpose();
+    P_new = 0.5 * (P_new + P_new.transpose()).eval();
+    if (!x_new.allFinite() || !P_new.allFinite()) continue;
+    x = x_new;
+    P = P_new;
+    (*accepted)[k] = true;
+  }
+}
+
+// Errors-in-variables correction. The filter solves sum Hᵀ N⁻¹ r = 0 with N evaluated at
+// the running scale, but H holds the noisy R * P_s, which biases s towards zero by about
+// s * tr(N⁻¹ C) per match (C = R cov(P_s) Rᵀ, "regression dilution"). The maximum-likelihood
+// score, with N = N(s) differentiated too, has the extra term s * rᵀ N⁻¹ C N⁻¹ r whose
+// expectation cancels that bias; one Newton step with the posterior covariance P as inverse
+// Hessian adds it. It is a second-order effect (about 0.1 % of s for 2 % depth noise), but it
+// grows relative to the standard deviation as matches accumulate. Returns that score.
+double dilutionScore(const std::vector<Match>& matches, const std::vector<bool>& accepted,
+                     const Eigen::Vector3d& t_hat, const Eigen::Vector2d& x) {
+  double score = 0.0;
+  for (size_t k = 0; k < matches.size(); ++k) {
+    if (!accepted[k]) continue;
+    const Match& m = matches[k];
+    const Eigen::Vector3d r = m.z - measurementMatrix(m, t_hat) * x;
+    const Eigen::LLT<Eigen::Matrix3d> llt(measurementNoise(m, x(0)));
+    if (llt.info() != Eigen::Success) continue;
+    const Eigen::Vector3d w = llt.solve(r);
+    score += x(0) * w.dot(m.cov_s * w);
+  }
+  return score;
+}
+
+// The status and message of a finished estimate against the options' acceptance limits.
+void judgeScale(const ScaleEstimationOptions& options, ScaleEstimate* result_out) {
+  ScaleEstimate& result = *result_out;
   const std::string summary = "scale " + formatDouble(result.scale) + " +- " + formatDouble(result.scale_stddev) +
                               " from " + std::to_string(result.inliers) + " of " + std::to_string(result.used) +
                               " matches";
@@ -297,6 +279,83 @@ ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
     result.status = Status::kOk;
     result.message = "scale estimation: " + summary;
   }
+}
+
+}  // namespace
+
+ScaleEstimate estimateScale(const std::vector<Eigen::Vector3d>& points_source,
+                            const std::vector<Eigen::Vector3d>& points_target, const Eigen::Matrix3d& R,
+                            const Eigen::Vector3d& t_hat, const ScaleEstimationOptions& options,
+                            const std::vector<Eigen::Matrix3d>* covariances_source,
+                            const std::vector<Eigen::Matrix3d>* covariances_target) {
+  validate(options);
+  checkScaleInputs(points_source, points_target, R, t_hat, covariances_source, covariances_target);
+
+  ScaleEstimate result;
+  const size_t n = points_source.size();
+  result.inlier_mask.assign(n, false);
+  if (n < static_cast<size_t>(options.min_inliers)) {
+    result.status = Status::kNotEnoughMatches;
+    result.message = "scale estimation: " + std::to_string(n) + " matches, at least " +
+                     std::to_string(options.min_inliers) + " needed";
+    return result;
+  }
+
+  const std::vector<Match> matches =
+      usableMatches(points_source, points_target, R, options, covariances_source, covariances_target);
+  result.used = static_cast<int>(matches.size());
+  if (result.used < options.min_inliers) {
+    result.status = Status::kNotEnoughMatches;
+    result.message = "scale estimation: " + std::to_string(result.used) + " usable matches (finite, non-zero " +
+                     "points) of " + std::to_string(n) + ", at least " + std::to_string(options.min_inliers) +
+                     " needed";
+    return result;
+  }
+
+  double distance_scale = 0.0;
+  Eigen::Vector2d x_start;
+  if (!robustStart(matches, t_hat, &x_start, &distance_scale)) {
+    result.status = Status::kScaleFailed;
+    result.message = "scale estimation: no match gives a positive scale";
+    return result;
+  }
+
+  Eigen::Vector2d x = x_start;
+  Eigen::Matrix2d P = Eigen::Matrix2d::Zero();
+  std::vector<bool> accepted(matches.size(), false);
+  std::vector<size_t> order(matches.size());
+  std::vector<double> start_d2(matches.size());
+  for (int pass = 0; pass < options.passes; ++pass) {
+    if (!(x_start(0) > 0.0 && std::isfinite(x_start(0)) && std::isfinite(x_start(1)))) break;
+    consistencyOrder(matches, t_hat, x_start, &order, &start_d2);
+
+    // Broad prior around the starting estimate.
+    const double sigma_s = options.prior_relative_stddev * x_start(0);
+    const double sigma_lambda = options.prior_relative_stddev * std::max(std::abs(x_start(1)), distance_scale);
+    x = x_start;
+    P = Eigen::Vector2d(sigma_s * sigma_s, sigma_lambda * sigma_lambda).asDiagonal();
+    std::fill(accepted.begin(), accepted.end(), false);
+
+    kalmanSweep(matches, order, t_hat, options, &x, &P, &accepted);
+    const double score = dilutionScore(matches, accepted, t_hat, x);
+    const Eigen::Vector2d x_corrected = x + P.col(0) * score;
+    if (x_corrected.allFinite()) x = x_corrected;
+    x_start = x;
+  }
+
+  result.scale = x(0);
+  result.lambda = x(1);
+  result.covariance = P;
+  result.scale_stddev = std::sqrt(std::max(0.0, P(0, 0)));
+  result.lambda_stddev = std::sqrt(std::max(0.0, P(1, 1)));
+  result.inliers = 0;
+  for (size_t k = 0; k < matches.size(); ++k) {
+    if (accepted[k]) {
+      result.inlier_mask[matches[k].index] = true;
+      ++result.inliers;
+    }
+  }
+  judgeScale(options, &result);
   return result;
 }
 

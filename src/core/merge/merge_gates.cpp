@@ -41,6 +41,124 @@ std::pair<double, double> pairSpread(const KeyframeEstimate& keyframes, const Si
   return {rmsMoveOfMatches(keyframes.matches, refined, keyframes.estimate), spread};
 }
 
+// The agreement checks of a converged refinement against the keyframe estimate: sets
+// v->refinement_chi2, rotation_correction_deg, scale_disagreement and, when every check passes,
+// refinement_kept. @return why the refinement is not kept ("" when it is)
+std::string refinementDisagreement(const KeyframeEstimate& keyframes, const Refinement& refinement,
+                                   const MergeGateOptions& options, GateVerdict* v) {
+  std::string why;
+  const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
+  const Eigen::LDLT<Matrix7d> ldlt(refinement.covariance + keyframes.covariance);
+  v->refinement_chi2 = ldlt.info() == Eigen::Success ? d.dot(ldlt.solve(d)) : std::numeric_limits<double>::infinity();
+  if (!std::isfinite(v->refinement_chi2)) v->refinement_chi2 = std::numeric_limits<double>::infinity();
+  v->rotation_correction_deg =
+      rotationDistance(refinement.estimate.rotation(), keyframes.estimate.rotation()) * 180.0 / M_PI;
+  v->scale_disagreement = std::abs(refinement.estimate.scale() / keyframes.estimate.scale() - 1.0);
+  if (v->refinement_chi2 > options.refinement_agreement_chi2) {
+    why = "the refinement disagrees with the keyframe matches (squared Mahalanobis distance " +
+          fmt(v->refinement_chi2) + " > merge.refinement_agreement_chi2 " + fmt(options.refinement_agreement_chi2) +
+          ")";
+  } else if (const auto [moved, spread] = pairSpread(keyframes, refinement.estimate);
+             keyframes.used_pairs >= 2 && moved > spread) {
+    why = "the refinement moved the keyframe matches by " + fmt(moved) +
+          " target units (RMS), farther than any used keyframe pair's own estimate does (" + fmt(spread) + ")";
+  } else if (v->rotation_correction_deg > options.max_icp_rotation_correction_deg) {
+    why = "the refinement rotated the keyframe estimate by " + fmt(v->rotation_correction_deg) +
+          " deg > merge.max_icp_rotation_correction_deg " + fmt(options.max_icp_rotation_correction_deg);
+  } else if (v->scale_disagreement > options.max_scale_disagreement) {
+    why = "the refinement changed the keyframe scale by " + fmt(100 * v->scale_disagreement) +
+          " % > merge.max_scale_disagreement " + fmt(100 * options.max_scale_disagreement) + " %";
+  } else {
+    v->refinement_kept = true;
+  }
+  return why;
+}
+
+// The refinement kept: its estimate, with its covariance scaled by the disagreement of two
+// independent estimates, plus how much the similarity varies over the overlap (measured between
+// the keyframe pairs): the edge stands for the similarity local to its anchor keyframes.
+void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinement, GateVerdict* v) {
+  v->estimate = refinement.estimate;
+  // The refinement estimates the similarity of the whole overlap; the edge is attached to one
+  // keyframe pair, where the similarity differs from the overlap's by the between-pair spread
+  // (each map's scale drift), as for the keyframe estimate. And the refinement moved the
+  // keyframe estimate, which measures that pair's surroundings, by d: against the local
+  // similarity the move is part of the error (on 13 simulated drift worlds the refined scale lies
+  // 0.01-0.8 % from the anchor pair's local truth, the keyframe estimate 0.01-0.4 %).
+  const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
+  // The refinement's own covariance (per-point noise only) is over-confident against the truth:
+  // on 36 kept refinements of 48 simulated merges (15-60 % overlap, 0-5 % drift) its 6-DoF
+  // ANEES was 26. What it misses shows in its disagreement with the keyframe estimate, an
+  // independent measurement of the same similarity: the chi-square scaling and d d^T carry it.
+  // With the between-pair spread added, the reported covariance had a 6-DoF ANEES of 0.72 (94 %
+  // under the chi-square 95 % bound) against the overlap's truth and 0.70 (92 %) against the
+  // anchor pair's local truth. Adding the keyframe estimate's whole covariance instead of the
+  // spread alone on drifting maps (as before) made it 0.5, too wide to be useful to an optimiser.
+  v->covariance = refinement.covariance * std::max(1.0, v->refinement_chi2 / 7.0) + keyframes.between;
+  v->covariance += d * d.transpose();
+}
+
+// A converged refinement not kept (v holds the keyframe estimate and covariance). Two estimates
+// disagree and the keyframe one is reported: its covariance must cover the other (the truth may
+// lie anywhere between them). Past a wide disagreement neither is trusted: refused, not merged
+// wrongly. @return true when refused (v complete), else v's covariance widened
+bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refinement,
+                   const MapRegistration& registration, const MergeGateOptions& options, const std::string& why,
+                   GateVerdict* v) {
+  // With one keyframe pair nothing measures the keyframe estimate's model errors (its
+  // keyframes' pose errors, the map's distortion), so its covariance is only a lower bound and
+  // a wide disagreement says that, not that either estimate is wrong: the covariance is made
+  // to cover the refinement instead (on the slambook2 frames one pair claimed 0.035 deg in
+  // rotation and lay 0.6 deg from the refinement).
+  if (keyframes.used_pairs >= 2 && v->refinement_chi2 > kRefuseFactor * options.refinement_agreement_chi2) {
+    v->status = Status::kIcpNotConverged;
+    v->message = "refused: the refinement and the keyframe matches disagree far beyond their uncertainty (" + why +
+                 "; rotation " + fmt(v->rotation_correction_deg) + " deg, scale " +
+                 fmt(100 * v->scale_disagreement) + " % apart)";
+    v->overlap = registration.overlap(v->estimate, options.overlap_distance_factor);
+    return true;
+  }
+  // The clouds' own vote: when they fit clearly better at the refined estimate, the keyframe
+  // evidence is the suspect one (wide-baseline pairs with few inliers can all be wrong alike),
+  // and keeping it would merge wrongly: refused.
+  const double overlap_keyframes = registration.overlap(keyframes.estimate, options.overlap_distance_factor);
+  const double overlap_refined = registration.overlap(refinement.estimate, options.overlap_distance_factor);
+  if (overlap_refined > kCloudPreference * overlap_keyframes) {
+    v->status = Status::kIcpNotConverged;
+    v->message = "refused: " + why + ", and the clouds fit the refined estimate better (overlap " +
+                 fmt(100 * overlap_refined) + " % against " + fmt(100 * overlap_keyframes) +
+                 " % at the keyframe estimate): the keyframe evidence is not trusted";
+    v->overlap = overlap_keyframes;
+    return true;
+  }
+  const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
+  v->covariance = coveringCovariance(keyframes.covariance, d * d.transpose() + 1e-12 * keyframes.covariance);
+  return false;
+}
+
+// The reported estimate's overlap (in the ball of the pooled keyframe matches) and finiteness,
+// and the verdict's status and message.
+void overlapAndStatus(const KeyframeEstimate& keyframes, const Refinement& refinement,
+                      const MapRegistration& registration, const MergeGateOptions& options, const std::string& why,
+                      GateVerdict* v) {
+  v->overlap = registration.overlap(v->estimate, options.overlap_distance_factor, overlapRegion(keyframes.matches));
+  const std::string kept = v->refinement_kept ? "refined estimate" : "keyframe estimate kept: " + why;
+  if (v->overlap < options.min_overlap) {
+    v->status = Status::kNoOverlap;
+    v->message = "refused: the aligned maps overlap by " + fmt(100 * v->overlap) + " % < merge.min_overlap " +
+                 fmt(100 * options.min_overlap) + " % (" + kept + ")";
+    return;
+  }
+  if (!v->estimate.matrix().allFinite() || !v->covariance.allFinite()) {
+    v->status = Status::kDegenerate;
+    v->message = "the estimate or its covariance is not finite (" + kept + ")";
+    return;
+  }
+  v->status = v->refinement_kept && refinement.status == Status::kDegenerate ? Status::kDegenerate : Status::kOk;
+  v->message = kept + ", overlap " + fmt(100 * v->overlap) + " %";
+  if (v->status == Status::kDegenerate) v->message = refinement.message + "; " + v->message;
+}
+
 }  // namespace
 
 MergeGates::MergeGates(const MergeGateOptions& options) : options_(options) { validate(options_); }
@@ -51,108 +169,18 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
   const bool refined = refinement.status == Status::kOk || refinement.status == Status::kDegenerate;
   std::string why;
   if (refined) {
-    const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
-    const Eigen::LDLT<Matrix7d> ldlt(refinement.covariance + keyframes.covariance);
-    v.refinement_chi2 = ldlt.info() == Eigen::Success ? d.dot(ldlt.solve(d)) : std::numeric_limits<double>::infinity();
-    if (!std::isfinite(v.refinement_chi2)) v.refinement_chi2 = std::numeric_limits<double>::infinity();
-    v.rotation_correction_deg =
-        rotationDistance(refinement.estimate.rotation(), keyframes.estimate.rotation()) * 180.0 / M_PI;
-    v.scale_disagreement = std::abs(refinement.estimate.scale() / keyframes.estimate.scale() - 1.0);
-    if (v.refinement_chi2 > options_.refinement_agreement_chi2) {
-      why = "the refinement disagrees with the keyframe matches (squared Mahalanobis distance " +
-            fmt(v.refinement_chi2) + " > merge.refinement_agreement_chi2 " + fmt(options_.refinement_agreement_chi2) +
-            ")";
-    } else if (const auto [moved, spread] = pairSpread(keyframes, refinement.estimate);
-               keyframes.used_pairs >= 2 && moved > spread) {
-      why = "the refinement moved the keyframe matches by " + fmt(moved) +
-            " target units (RMS), farther than any used keyframe pair's own estimate does (" + fmt(spread) + ")";
-    } else if (v.rotation_correction_deg > options_.max_icp_rotation_correction_deg) {
-      why = "the refinement rotated the keyframe estimate by " + fmt(v.rotation_correction_deg) +
-            " deg > merge.max_icp_rotation_correction_deg " + fmt(options_.max_icp_rotation_correction_deg);
-    } else if (v.scale_disagreement > options_.max_scale_disagreement) {
-      why = "the refinement changed the keyframe scale by " + fmt(100 * v.scale_disagreement) +
-            " % > merge.max_scale_disagreement " + fmt(100 * options_.max_scale_disagreement) + " %";
-    } else {
-      v.refinement_kept = true;
-    }
+    why = refinementDisagreement(keyframes, refinement, options_, &v);
   } else {
     why = "the refinement failed (" + refinement.message + ")";
   }
   if (v.refinement_kept) {
-    // The refinement's covariance, scaled by the disagreement of two independent estimates, plus
-    // how much the similarity varies over the overlap (measured between the keyframe pairs): the
-    // edge stands for the similarity local to its anchor keyframes.
-    v.estimate = refinement.estimate;
-    // The refinement estimates the similarity of the whole overlap; the edge is attached to one
-    // keyframe pair, where the similarity differs from the overlap's by the between-pair spread
-    // (each map's scale drift), as for the keyframe estimate. And the refinement moved the
-    // keyframe estimate, which measures that pair's surroundings, by d: against the local
-    // similarity the move is part of the error (on 13 simulated drift worlds the refined scale lies
-    // 0.01-0.8 % from the anchor pair's local truth, the keyframe estimate 0.01-0.4 %).
-    const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
-    // The refinement's own covariance (per-point noise only) is over-confident against the truth:
-    // on 36 kept refinements of 48 simulated merges (15-60 % overlap, 0-5 % drift) its 6-DoF
-    // ANEES was 26. What it misses shows in its disagreement with the keyframe estimate, an
-    // independent measurement of the same similarity: the chi-square scaling and d d^T carry it.
-    // With the between-pair spread added, the reported covariance had a 6-DoF ANEES of 0.72 (94 %
-    // under the chi-square 95 % bound) against the overlap's truth and 0.70 (92 %) against the
-    // anchor pair's local truth. Adding the keyframe estimate's whole covariance instead of the
-    // spread alone on drifting maps (as before) made it 0.5, too wide to be useful to an optimiser.
-    v.covariance = refinement.covariance * std::max(1.0, v.refinement_chi2 / 7.0) + keyframes.between;
-    v.covariance += d * d.transpose();
+    keepRefinement(keyframes, refinement, &v);
   } else {
     v.estimate = keyframes.estimate;
     v.covariance = keyframes.covariance;
-    if (refined) {
-      // Two estimates disagree and the keyframe one is reported: its covariance must cover the
-      // other (the truth may lie anywhere between them). Past a wide disagreement neither is
-      // trusted: refused, not merged wrongly.
-      // With one keyframe pair nothing measures the keyframe estimate's model errors (its
-      // keyframes' pose errors, the map's distortion), so its covariance is only a lower bound and
-      // a wide disagreement says that, not that either estimate is wrong: the covariance is made
-      // to cover the refinement instead (on the slambook2 frames one pair claimed 0.035 deg in
-      // rotation and lay 0.6 deg from the refinement).
-      if (keyframes.used_pairs >= 2 && v.refinement_chi2 > kRefuseFactor * options_.refinement_agreement_chi2) {
-        v.status = Status::kIcpNotConverged;
-        v.message = "refused: the refinement and the keyframe matches disagree far beyond their uncertainty (" +
-                    why + "; rotation " + fmt(v.rotation_correction_deg) + " deg, scale " +
-                    fmt(100 * v.scale_disagreement) + " % apart)";
-        v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor);
-        return v;
-      }
-      // The clouds' own vote: when they fit clearly better at the refined estimate, the keyframe
-      // evidence is the suspect one (wide-baseline pairs with few inliers can all be wrong alike),
-      // and keeping it would merge wrongly: refused.
-      const double overlap_keyframes = registration.overlap(keyframes.estimate, options_.overlap_distance_factor);
-      const double overlap_refined = registration.overlap(refinement.estimate, options_.overlap_distance_factor);
-      if (overlap_refined > kCloudPreference * overlap_keyframes) {
-        v.status = Status::kIcpNotConverged;
-        v.message = "refused: " + why + ", and the clouds fit the refined estimate better (overlap " +
-                    fmt(100 * overlap_refined) + " % against " + fmt(100 * overlap_keyframes) +
-                    " % at the keyframe estimate): the keyframe evidence is not trusted";
-        v.overlap = overlap_keyframes;
-        return v;
-      }
-      const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
-      v.covariance = coveringCovariance(keyframes.covariance, d * d.transpose() + 1e-12 * keyframes.covariance);
-    }
+    if (refined && refuseOrCover(keyframes, refinement, registration, options_, why, &v)) return v;
   }
-  v.overlap = registration.overlap(v.estimate, options_.overlap_distance_factor, overlapRegion(keyframes.matches));
-  const std::string kept = v.refinement_kept ? "refined estimate" : "keyframe estimate kept: " + why;
-  if (v.overlap < options_.min_overlap) {
-    v.status = Status::kNoOverlap;
-    v.message = "refused: the aligned maps overlap by " + fmt(100 * v.overlap) + " % < merge.min_overlap " +
-                fmt(100 * options_.min_overlap) + " % (" + kept + ")";
-    return v;
-  }
-  if (!v.estimate.matrix().allFinite() || !v.covariance.allFinite()) {
-    v.status = Status::kDegenerate;
-    v.message = "the estimate or its covariance is not finite (" + kept + ")";
-    return v;
-  }
-  v.status = v.refinement_kept && refinement.status == Status::kDegenerate ? Status::kDegenerate : Status::kOk;
-  v.message = kept + ", overlap " + fmt(100 * v.overlap) + " %";
-  if (v.status == Status::kDegenerate) v.message = refinement.message + "; " + v.message;
+  overlapAndStatus(keyframes, refinement, registration, options_, why, &v);
   return v;
 }
 

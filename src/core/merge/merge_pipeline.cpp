@@ -84,6 +84,98 @@ KeyframeEdge keyframeEdge(const AgentMap& source, const AgentMap& target, const 
   return e;
 }
 
+// The front end's timings and counts into the report and diagnostics.
+void recordFrontEnd(const FrontEndResult& front, RegistrationReport* rep, MergeDiagnostics* diag) {
+  rep->timings.features = front.features_ms;
+  rep->timings.relative_pose = front.relative_pose_ms;
+  diag->keyframe_pairs = front.keyframe_pairs;
+  diag->candidate_pairs = static_cast<int>(front.pairs.size());
+  diag->verified_pairs = front.verified;
+  diag->features_computed = front.features_computed;
+  diag->features_cached = front.features_cached;
+}
+
+// No keyframe pair verified: the best pair into the report, and the status and message why.
+Status noPairVerified(const FrontEndResult& front, RegistrationReport* rep, MergeDiagnostics* diag,
+                      std::string* message) {
+  const CandidatePair& c = front.pairs.front();
+  Status status = c.pose.status == Status::kOk ? Status::kRelativePoseFailed : c.pose.status;
+  if (status == Status::kDegenerate) status = Status::kRelativePoseFailed;
+  rep->source_keyframe = c.source->id;
+  rep->target_keyframe = c.target->id;
+  diag->feature_matches = static_cast<int>(c.matches.size());
+  *message = "no keyframe pair verified (" + std::to_string(front.pairs.size()) + " tried); best pair source " +
+             std::to_string(c.source->id) + " / target " + std::to_string(c.target->id) + ": " + c.pose.message;
+  return status;
+}
+
+// The keyframe estimate's anchor pair, initial similarity and Kalman scale into the report and
+// diagnostics.
+void recordKeyframeEstimate(const KeyframeEstimate& kf, const PairEvidence& anchor, RegistrationReport* rep,
+                            MergeDiagnostics* diag) {
+  rep->source_keyframe = anchor.source_keyframe;
+  rep->target_keyframe = anchor.target_keyframe;
+  diag->feature_matches = anchor.feature_matches;
+  diag->relative_pose_inliers = anchor.inliers;
+  diag->depth_matches = anchor.depth_matches;
+  diag->keyframe_matches = static_cast<int>(kf.matches.size());
+  diag->initial = kf.estimate;
+  diag->keyframe_covariance = kf.covariance;
+  diag->keyframe_mean_covariance = kf.mean_covariance;
+  diag->between_pairs = kf.between;
+  diag->kalman_scale = kf.estimate.scale();
+  diag->kalman_scale_stddev = kf.estimate.scale() * std::sqrt(std::max(0.0, kf.covariance(6, 6)));
+  rep->keyframe_transform = kf.estimate;
+  rep->keyframe_covariance = kf.covariance.topLeftCorner<6, 6>();
+  rep->keyframe_scale_stddev = diag->kalman_scale_stddev;
+}
+
+// Scale detection on the filtered clouds (reported beside the keyframe scale; timed as scale).
+void recordScaleDetection(const MapRegistration& registration, const ScaleDetectionOptions& options,
+                          RegistrationReport* rep) {
+  auto t = Clock::now();
+  const ScaleDetectionResult detection = detectScale(registration.source(), registration.target(), options);
+  rep->timings.scale += msSince(t);
+  rep->scale_difference_detected = detection.scale_difference_detected;
+  rep->detected_scale_ratio = detection.ratio;
+}
+
+// The refinement's timings, ICP figures and estimate into the report and diagnostics.
+void recordRefinement(const Refinement& refinement, RegistrationReport* rep, MergeDiagnostics* diag) {
+  rep->timings.icp = refinement.ms_icp;
+  rep->timings.covariance = refinement.ms_covariance;
+  rep->icp_iterations = refinement.icp.iterations;
+  if (refinement.status == Status::kOk || refinement.status == Status::kDegenerate) {
+    rep->fitness_rmse = refinement.icp.fitness_rmse;
+    rep->correspondences = refinement.icp.correspondences;
+    rep->condition_number = refinement.closed_form.condition_number;
+    rep->noise_stddev = refinement.closed_form.noise_stddev;
+  }
+  diag->block_spread_factor = refinement.block_spread_factor;
+  diag->refinement_status = refinement.status;
+  diag->refined = refinement.estimate;
+  diag->refined_covariance = refinement.covariance;
+}
+
+// The gates' overlap and refinement decision into the report and diagnostics.
+void recordVerdict(const GateVerdict& verdict, RegistrationReport* rep, MergeDiagnostics* diag) {
+  diag->overlap = verdict.overlap;
+  diag->refinement_kept = verdict.refinement_kept;
+  diag->refinement_chi2 = verdict.refinement_chi2;
+  rep->overlap = verdict.overlap;
+  rep->refinement_kept = verdict.refinement_kept;
+  rep->refinement_chi2 = verdict.refinement_chi2;
+}
+
+// The message of a successful merge.
+std::string mergedMessage(const KeyframeEstimate& kf, const PairEvidence& anchor, const MergeDiagnostics& diag,
+                          const GateVerdict& verdict) {
+  return "merged 2 maps: " + std::to_string(kf.used_pairs) + " keyframe pair(s) (anchor source " +
+         std::to_string(anchor.source_keyframe) + " / target " + std::to_string(anchor.target_keyframe) + ", " +
+         std::to_string(anchor.inliers) + " inliers), keyframe scale " + fmt(diag.kalman_scale, 4) + " +- " +
+         fmt(diag.kalman_scale_stddev, 2) + "; " + verdict.message;
+}
+
 }  // namespace
 
 MergePipeline::MergePipeline(const MergeOptions& options)
@@ -108,24 +200,12 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
 
   // 1. Keyframe front end.
   const FrontEndResult front = front_end_.run(source, target, request, source_key, target_key);
-  rep.timings.features = front.features_ms;
-  rep.timings.relative_pose = front.relative_pose_ms;
-  diag.keyframe_pairs = front.keyframe_pairs;
-  diag.candidate_pairs = static_cast<int>(front.pairs.size());
-  diag.verified_pairs = front.verified;
-  diag.features_computed = front.features_computed;
-  diag.features_cached = front.features_cached;
+  recordFrontEnd(front, &rep, &diag);
   if (front.status != Status::kOk) return finish(front.status, front.message);
   if (front.verified == 0) {
-    const CandidatePair& c = front.pairs.front();
-    Status status = c.pose.status == Status::kOk ? Status::kRelativePoseFailed : c.pose.status;
-    if (status == Status::kDegenerate) status = Status::kRelativePoseFailed;
-    rep.source_keyframe = c.source->id;
-    rep.target_keyframe = c.target->id;
-    diag.feature_matches = static_cast<int>(c.matches.size());
-    return finish(status, "no keyframe pair verified (" + std::to_string(front.pairs.size()) +
-                              " tried); best pair source " + std::to_string(c.source->id) + " / target " +
-                              std::to_string(c.target->id) + ": " + c.pose.message);
+    std::string message;
+    const Status status = noPairVerified(front, &rep, &diag, &message);
+    return finish(status, message);
   }
 
   // 2. Keyframe estimate from every verified pair.
@@ -137,56 +217,20 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   diag.distant_pairs = kf.distant_pairs;
   if (kf.status != Status::kOk) return finish(kf.status, kf.message);
   const PairEvidence& anchor = kf.pairs[static_cast<std::size_t>(kf.anchor)];
-  rep.source_keyframe = anchor.source_keyframe;
-  rep.target_keyframe = anchor.target_keyframe;
-  diag.feature_matches = anchor.feature_matches;
-  diag.relative_pose_inliers = anchor.inliers;
-  diag.depth_matches = anchor.depth_matches;
-  diag.keyframe_matches = static_cast<int>(kf.matches.size());
-  diag.initial = kf.estimate;
-  diag.keyframe_covariance = kf.covariance;
-  diag.keyframe_mean_covariance = kf.mean_covariance;
-  diag.between_pairs = kf.between;
-  diag.kalman_scale = kf.estimate.scale();
-  diag.kalman_scale_stddev = kf.estimate.scale() * std::sqrt(std::max(0.0, kf.covariance(6, 6)));
-  rep.keyframe_transform = kf.estimate;
-  rep.keyframe_covariance = kf.covariance.topLeftCorner<6, 6>();
-  rep.keyframe_scale_stddev = diag.kalman_scale_stddev;
+  recordKeyframeEstimate(kf, anchor, &rep, &diag);
 
   // 3. Refinement on the map clouds.
   MapRegistration registration(options_.registration, options_.merge.refine_scale);
   const std::string cloud_problem = registration.setClouds(source.cloud, target.cloud);
   rep.timings.filters = registration.filterMs();
   if (!cloud_problem.empty()) return finish(Status::kInvalidInput, cloud_problem);
-  auto t = Clock::now();
-  const ScaleDetectionResult detection =
-      detectScale(registration.source(), registration.target(), options_.registration.scale_detection);
-  rep.timings.scale += msSince(t);
-  rep.scale_difference_detected = detection.scale_difference_detected;
-  rep.detected_scale_ratio = detection.ratio;
+  recordScaleDetection(registration, options_.registration.scale_detection, &rep);
   const Refinement refinement = registration.refine(kf.estimate, kf.matches);
-  rep.timings.icp = refinement.ms_icp;
-  rep.timings.covariance = refinement.ms_covariance;
-  rep.icp_iterations = refinement.icp.iterations;
-  if (refinement.status == Status::kOk || refinement.status == Status::kDegenerate) {
-    rep.fitness_rmse = refinement.icp.fitness_rmse;
-    rep.correspondences = refinement.icp.correspondences;
-    rep.condition_number = refinement.closed_form.condition_number;
-    rep.noise_stddev = refinement.closed_form.noise_stddev;
-  }
-  diag.block_spread_factor = refinement.block_spread_factor;
-  diag.refinement_status = refinement.status;
-  diag.refined = refinement.estimate;
-  diag.refined_covariance = refinement.covariance;
+  recordRefinement(refinement, &rep, &diag);
 
   // 4. Gates.
   GateVerdict verdict = gates_.judge(kf, refinement, registration);
-  diag.overlap = verdict.overlap;
-  diag.refinement_kept = verdict.refinement_kept;
-  diag.refinement_chi2 = verdict.refinement_chi2;
-  rep.overlap = verdict.overlap;
-  rep.refinement_kept = verdict.refinement_kept;
-  rep.refinement_chi2 = verdict.refinement_chi2;
+  recordVerdict(verdict, &rep, &diag);
   if (!options_.merge.refine_scale && verdict.refinement_kept) {
     // Scale policy: the refinement kept the keyframe scale, which keeps its uncertainty.
     verdict.covariance(6, 6) = kf.covariance(6, 6);
@@ -209,11 +253,7 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   rep.covariance = cov;
   rep.information = info;
   rep.keyframe_edge = keyframeEdge(source, target, anchor, verdict.estimate, verdict.covariance);
-  return finish(Status::kOk, "merged 2 maps: " + std::to_string(kf.used_pairs) + " keyframe pair(s) (anchor source " +
-                                 std::to_string(anchor.source_keyframe) + " / target " +
-                                 std::to_string(anchor.target_keyframe) + ", " + std::to_string(anchor.inliers) +
-                                 " inliers), keyframe scale " + fmt(diag.kalman_scale, 4) + " +- " +
-                                 fmt(diag.kalman_scale_stddev, 2) + "; " + verdict.message);
+  return finish(Status::kOk, mergedMessage(kf, anchor, diag, verdict));
 }
 
 std::optional<MergeEdge> poseGraphEdge(const MergeResult& result) {

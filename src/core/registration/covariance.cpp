@@ -325,6 +325,212 @@ BlockSpread blockSpreadCovariance(const Correspondences& m, const Sim3& transfor
   return out;
 }
 
+namespace {
+
+// Sums of the O(n) accumulation in u coordinates (see computeIcpCovariance()).
+struct UAccumulation {
+  Matrix7d h = Matrix7d::Zero();    // Σ JᵀJ
+  Matrix7d g = Matrix7d::Zero();    // Σ (∂g/∂y)(∂g/∂y)ᵀ
+  Matrix7d obs = Matrix7d::Zero();  // geometric information
+  double sum_r2 = 0.0;              // Σ squared residuals
+};
+
+// O(n) accumulation in u coordinates: H = Σ JᵀJ, G = Σ (∂g/∂y)(∂g/∂y)ᵀ, O = geometric information.
+UAccumulation accumulateU(const Correspondences& matches, const Cloud& y_all, const Cloud& normals,
+                          const Eigen::Vector3d& c, double inv_rho, bool plane) {
+  UAccumulation acc;
+  Matrix7d& h = acc.h;
+  Matrix7d& g = acc.g;
+  Matrix7d& obs = acc.obs;
+  double& sum_r2 = acc.sum_r2;
+  const Eigen::Index n = matches.source.cols();
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const Eigen::Vector3d y = y_all.col(i);
+    const Eigen::Vector3d q = matches.target.col(i);
+    const Eigen::Vector3d a = y - c;
+    const Eigen::Vector3d r = y - q;
+    const Eigen::Vector3d nrm = normals.col(i);
+    Vector7d an;
+    an << nrm, a.cross(nrm) * inv_rho, nrm.dot(a) * inv_rho;
+    obs.noalias() += an * an.transpose();
+    if (plane) {
+      const double rp = nrm.dot(r);
+      Matrix73d b = Matrix73d::Zero();
+      b.block<3, 3>(3, 0) = -skew(nrm) * inv_rho;
+      b.block<1, 3>(6, 0) = nrm.transpose() * inv_rho;
+      const Matrix73d dgdy = an * nrm.transpose() + b * rp;
+      h.noalias() += an * an.transpose();
+      g.noalias() += dgdy * dgdy.transpose();
+      sum_r2 += rp * rp;
+    } else {
+      Matrix73d jt;  // Jᵀ (7x3): residual r = y - q w.r.t. u
+      jt.block<3, 3>(0, 0).setIdentity();
+      jt.block<3, 3>(3, 0) = skew(a) * inv_rho;  // (−[a]x)ᵀ
+      jt.block<1, 3>(6, 0) = a.transpose() * inv_rho;
+      Matrix73d dgdy;
+      dgdy.block<3, 3>(0, 0).setIdentity();
+      dgdy.block<3, 3>(3, 0) = skew(q - c) * inv_rho;
+      dgdy.block<1, 3>(6, 0) = (r + a).transpose() * inv_rho;
+      h.noalias() += jt * jt.transpose();
+      g.noalias() += dgdy * dgdy.transpose();
+      sum_r2 += r.squaredNorm();
+    }
+  }
+  return acc;
+}
+
+// Noise: configured, or from the residuals (each cloud contributes σ² per coordinate), never
+// below a floor set by the clouds' own resolution, a fiftieth of their point spacing h: real
+// maps' noise is far above it (it never binds on them), but a map registered with itself has
+// zero residuals and would otherwise claim an exact pose (information of 1e23 and more).
+// Returns σ² per coordinate [target units²].
+double noiseVariance(const Correspondences& matches, const CovarianceOptions& o, bool plane, int d, double sum_r2) {
+  const Eigen::Index n = matches.source.cols();
+  double sigma2 = o.sensor_noise_stddev * o.sensor_noise_stddev;
+  if (!(sigma2 > 0.0)) {
+    const double dof = plane ? static_cast<double>(n - d) : static_cast<double>(3 * n - d);
+    sigma2 = sum_r2 / (2.0 * dof);
+    double spacing = matches.spacing;
+    if (!(spacing > 0.0)) {
+      const KdTree spacing_tree(distinctTargets(matches.target));
+      spacing = medianSpacing(spacing_tree);
+    }
+    sigma2 = std::max(sigma2, std::pow(spacing / kNoiseFloorPerSpacing, 2));
+  }
+  return sigma2;
+}
+
+// The eigenvectors of the geometric information whose eigenvalue is below its largest over the
+// degeneracy threshold: the unobservable directions (d x k).
+Eigen::MatrixXd nullDirections(const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>& oeig, int d,
+                               const CovarianceOptions& o) {
+  const Eigen::VectorXd oev = oeig.eigenvalues();  // ascending
+  const double max_ev = oev(d - 1);
+  Eigen::MatrixXd null_dirs(d, 0);
+  for (int k = 0; k < d; ++k) {
+    if (!(oev(k) * o.degeneracy_condition_threshold > max_ev)) {
+      null_dirs.conservativeResize(d, null_dirs.cols() + 1);
+      null_dirs.col(null_dirs.cols() - 1) = oeig.eigenvectors().col(k);
+    }
+  }
+  return null_dirs;
+}
+
+// The covariance and information of the observable subspace, back in u (d x d blocks of 7x7).
+struct UCovariance {
+  Matrix7d cov = Matrix7d::Zero();
+  Matrix7d info = Matrix7d::Zero();
+};
+
+// Censi on the observable subspace V_o (unobservable directions V_n are kept out of every
+// inversion): cov_o = σ² H_o⁻¹ (G_o + H_o) H_o⁻¹ with X_o = V_oᵀ X V_o; the H term is the
+// target-point noise, G the source-point noise. The calibrated model inflates cov_o (and sets
+// res->inflation and res->calibration_splits_used). Back to u, unobservable directions get an
+// effectively unbounded variance and no information at all.
+UCovariance observableCovariance(const UAccumulation& acc, const Eigen::MatrixXd& eigenvectors,
+                                 const Eigen::MatrixXd& null_dirs, int d, double sigma2, double rho,
+                                 const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
+                                 bool with_scale, const CovarianceOptions& o, CovarianceResult* res) {
+  const Eigen::Index k_obs = d - null_dirs.cols();
+  const Eigen::MatrixXd v_obs = eigenvectors.rightCols(k_obs);
+  const Eigen::MatrixXd h_o = v_obs.transpose() * acc.h.topLeftCorner(d, d) * v_obs;
+  const Eigen::MatrixXd g_o = v_obs.transpose() * acc.g.topLeftCorner(d, d) * v_obs;
+  const Eigen::MatrixXd h_o_inv = h_o.inverse();
+  Eigen::MatrixXd cov_o = sigma2 * h_o_inv * (g_o + h_o) * h_o_inv;
+  cov_o = 0.5 * (cov_o + cov_o.transpose()).eval();
+  if (o.model == CovarianceModel::kCalibrated) {
+    const Calibration cal = splitSampleCalibration(matches, transform, metric, with_scale, o);
+    res->inflation = std::max(1.0, cal.kappa);
+    res->calibration_splits_used = cal.splits;
+    cov_o *= res->inflation;
+  }
+  const Eigen::MatrixXd info_o = cov_o.inverse();
+
+  UCovariance u;
+  u.cov.topLeftCorner(d, d) = v_obs * cov_o * v_obs.transpose();
+  u.info.topLeftCorner(d, d) = v_obs * info_o * v_obs.transpose();
+  const double big = 1e6 * rho * rho;
+  for (Eigen::Index k = 0; k < null_dirs.cols(); ++k) {
+    u.cov.topLeftCorner(d, d) += big * null_dirs.col(k) * null_dirs.col(k).transpose();
+  }
+  return u;
+}
+
+// res->covariance7 from the 7x7 covariance with log scale as 7th variable (δσ = δs / s) and
+// res->scale_stddev; without scale, the pose block res->covariance (already set).
+void setCovariance7(const Matrix7d& cov7, const Sim3& transform, bool with_scale, CovarianceResult* res) {
+  if (with_scale) {
+    Vector7d jd = Vector7d::Ones();
+    jd(6) = transform.scale();  // δσ = δs / s
+    res->covariance7 = jd.asDiagonal() * cov7 * jd.asDiagonal();
+    res->scale_stddev = std::sqrt(std::max(0.0, res->covariance7(6, 6)));
+  } else {
+    res->covariance7.topLeftCorner<6, 6>() = res->covariance;
+  }
+}
+
+// u -> δ. Covariance: the 6x6 pose block is the marginal. Information of the pose marginal:
+// the Schur complement of the scale in the joint information.
+void fromUToDelta(const UCovariance& u, const Matrix7d& kmat, const Sim3& transform, bool with_scale,
+                  CovarianceResult* res) {
+  const Matrix7d kinv = kmat.inverse();
+  const Matrix7d cov7 = kmat * u.cov * kmat.transpose();  // log scale as 7th variable
+  res->covariance = cov7.topLeftCorner<6, 6>();
+  const Matrix7d info7 = kinv.transpose() * u.info * kinv;
+  res->information = info7.topLeftCorner<6, 6>();
+  if (with_scale && info7(6, 6) > 0.0) {
+    res->information -= info7.block<6, 1>(0, 6) * info7.block<1, 6>(6, 0) / info7(6, 6);
+  }
+  res->information = 0.5 * (res->information + res->information.transpose()).eval();
+  setCovariance7(cov7, transform, with_scale, res);
+}
+
+// The DEGENERATE status and a message naming the dominant component of the weakest direction,
+// mapped back to δ.
+void setDegenerate(const Eigen::MatrixXd& null_dirs, const Matrix7d& kmat, int d, double inv_rho,
+                   const CovarianceOptions& o, CovarianceResult* res) {
+  const Vector7d weakest = (Vector7d() << null_dirs.col(0), Eigen::VectorXd::Zero(7 - d)).finished();
+  Vector7d w = kmat * weakest;
+  w.head<3>() *= inv_rho;  // compare translation and rotation on the same footing
+  Eigen::Index arg = 0;
+  w.cwiseAbs().maxCoeff(&arg);
+  std::ostringstream msg;
+  msg << "covariance: " << null_dirs.cols() << " unobservable direction(s), weakest along " << kDirectionNames[arg]
+      << " (condition number " << res->condition_number << " > " << o.degeneracy_condition_threshold << ")";
+  res->status = Status::kDegenerate;
+  res->message = msg.str();
+}
+
+// The blocks model: widen res's covariance to cover the spread between spatial blocks.
+void applyBlockSpread(const Correspondences& matches, const Sim3& transform, ErrorMetric metric, bool with_scale,
+                      CovarianceResult* res) {
+  const BlockSpread spread = blockSpreadCovariance(matches, transform, metric, with_scale);
+  if (spread.ok) {
+    const Matrix7d covered = coveringCovariance(logScaleCovariance(*res, transform.scale()), spread.sandwich,
+                                                &res->inflation);
+    res->covariance = covered.topLeftCorner<6, 6>();
+    res->information = res->covariance.ldlt().solve(Matrix6d::Identity());
+    res->information = 0.5 * (res->information + res->information.transpose()).eval();
+    setCovariance7(covered, transform, with_scale, res);
+    res->calibration_splits_used = spread.clusters;
+  }
+}
+
+// The OK message: model, correspondences, noise, condition number and the model's inflation.
+std::string okMessage(const CovarianceResult& res, Eigen::Index n, const CovarianceOptions& o) {
+  std::ostringstream msg;
+  msg << "covariance (" << covarianceModelName(o.model) << ") from " << n << " correspondences, noise "
+      << res.noise_stddev << ", condition number " << res.condition_number;
+  if (o.model == CovarianceModel::kCalibrated) {
+    msg << ", inflation " << res.inflation << " from " << res.calibration_splits_used << " split(s)";
+  } else if (o.model == CovarianceModel::kBlocks) {
+    msg << ", block spread x" << res.inflation << " over " << res.calibration_splits_used << " block(s)";
+  }
+  return msg.str();
+}
+
+}  // namespace
+
 CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
                                       bool with_scale, const CovarianceOptions& o) {
   validate(o);
@@ -359,167 +565,32 @@ CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3
     normals = estimateNormals(tree, o.normal_neighbors);
   }
 
-  // O(n) accumulation in u coordinates: H = Σ JᵀJ, G = Σ (∂g/∂y)(∂g/∂y)ᵀ, O = geometric information.
-  Matrix7d h = Matrix7d::Zero(), g = Matrix7d::Zero(), obs = Matrix7d::Zero();
-  double sum_r2 = 0.0;
-  for (Eigen::Index i = 0; i < n; ++i) {
-    const Eigen::Vector3d y = y_all.col(i);
-    const Eigen::Vector3d q = matches.target.col(i);
-    const Eigen::Vector3d a = y - c;
-    const Eigen::Vector3d r = y - q;
-    const Eigen::Vector3d nrm = normals.col(i);
-    Vector7d an;
-    an << nrm, a.cross(nrm) * inv_rho, nrm.dot(a) * inv_rho;
-    obs.noalias() += an * an.transpose();
-    if (plane) {
-      const double rp = nrm.dot(r);
-      Matrix73d b = Matrix73d::Zero();
-      b.block<3, 3>(3, 0) = -skew(nrm) * inv_rho;
-      b.block<1, 3>(6, 0) = nrm.transpose() * inv_rho;
-      const Matrix73d dgdy = an * nrm.transpose() + b * rp;
-      h.noalias() += an * an.transpose();
-      g.noalias() += dgdy * dgdy.transpose();
-      sum_r2 += rp * rp;
-    } else {
-      Matrix73d jt;  // Jᵀ (7x3): residual r = y - q w.r.t. u
-      jt.block<3, 3>(0, 0).setIdentity();
-      jt.block<3, 3>(3, 0) = skew(a) * inv_rho;  // (−[a]x)ᵀ
-      jt.block<1, 3>(6, 0) = a.transpose() * inv_rho;
-      Matrix73d dgdy;
-      dgdy.block<3, 3>(0, 0).setIdentity();
-      dgdy.block<3, 3>(3, 0) = skew(q - c) * inv_rho;
-      dgdy.block<1, 3>(6, 0) = (r + a).transpose() * inv_rho;
-      h.noalias() += jt * jt.transpose();
-      g.noalias() += dgdy * dgdy.transpose();
-      sum_r2 += r.squaredNorm();
-    }
-  }
+  const UAccumulation acc = accumulateU(matches, y_all, normals, c, inv_rho, plane);
 
-  // Noise: configured, or from the residuals (each cloud contributes σ² per coordinate), never
-  // below a floor set by the clouds' own resolution, a fiftieth of their point spacing h: real
-  // maps' noise is far above it (it never binds on them), but a map registered with itself has
-  // zero residuals and would otherwise claim an exact pose (information of 1e23 and more).
-  double sigma2 = o.sensor_noise_stddev * o.sensor_noise_stddev;
-  if (!(sigma2 > 0.0)) {
-    const double dof = plane ? static_cast<double>(n - d) : static_cast<double>(3 * n - d);
-    sigma2 = sum_r2 / (2.0 * dof);
-    double spacing = matches.spacing;
-    if (!(spacing > 0.0)) {
-      const KdTree spacing_tree(distinctTargets(matches.target));
-      spacing = medianSpacing(spacing_tree);
-    }
-    sigma2 = std::max(sigma2, std::pow(spacing / kNoiseFloorPerSpacing, 2));
-  }
+  double sigma2 = noiseVariance(matches, o, plane, d, acc.sum_r2);
   res.noise_stddev = std::sqrt(sigma2);
   // Correspondences that measure the same surfaces twice (symmetric matching) carry the
   // information once.
   sigma2 *= std::max(1.0, matches.redundancy);
 
   // Degeneracy from the geometric information over the pose (and scale) directions.
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> oeig(obs.topLeftCorner(d, d));
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> oeig(acc.obs.topLeftCorner(d, d));
   const Eigen::VectorXd oev = oeig.eigenvalues();  // ascending
   const double max_ev = oev(d - 1);
   res.condition_number = oev(0) > 0.0 ? max_ev / oev(0) : std::numeric_limits<double>::infinity();
-  Eigen::MatrixXd null_dirs(d, 0);
-  for (int k = 0; k < d; ++k) {
-    if (!(oev(k) * o.degeneracy_condition_threshold > max_ev)) {
-      null_dirs.conservativeResize(d, null_dirs.cols() + 1);
-      null_dirs.col(null_dirs.cols() - 1) = oeig.eigenvectors().col(k);
-    }
-  }
+  const Eigen::MatrixXd null_dirs = nullDirections(oeig, d, o);
 
-  // Censi on the observable subspace V_o (unobservable directions V_n are kept out of every
-  // inversion): cov_o = σ² H_o⁻¹ (G_o + H_o) H_o⁻¹ with X_o = V_oᵀ X V_o; the H term is the
-  // target-point noise, G the source-point noise.
-  const Eigen::Index k_obs = d - null_dirs.cols();
-  const Eigen::MatrixXd v_obs = oeig.eigenvectors().rightCols(k_obs);
-  const Eigen::MatrixXd h_o = v_obs.transpose() * h.topLeftCorner(d, d) * v_obs;
-  const Eigen::MatrixXd g_o = v_obs.transpose() * g.topLeftCorner(d, d) * v_obs;
-  const Eigen::MatrixXd h_o_inv = h_o.inverse();
-  Eigen::MatrixXd cov_o = sigma2 * h_o_inv * (g_o + h_o) * h_o_inv;
-  cov_o = 0.5 * (cov_o + cov_o.transpose()).eval();
-  if (o.model == CovarianceModel::kCalibrated) {
-    const Calibration cal = splitSampleCalibration(matches, transform, metric, with_scale, o);
-    res.inflation = std::max(1.0, cal.kappa);
-    res.calibration_splits_used = cal.splits;
-    cov_o *= res.inflation;
-  }
-  const Eigen::MatrixXd info_o = cov_o.inverse();
-
-  // Back to u (d x d): unobservable directions get an effectively unbounded variance and no
-  // information at all.
-  Matrix7d cov_u = Matrix7d::Zero(), info_u = Matrix7d::Zero();
-  cov_u.topLeftCorner(d, d) = v_obs * cov_o * v_obs.transpose();
-  info_u.topLeftCorner(d, d) = v_obs * info_o * v_obs.transpose();
-  const double big = 1e6 * rho * rho;
-  for (Eigen::Index k = 0; k < null_dirs.cols(); ++k) {
-    cov_u.topLeftCorner(d, d) += big * null_dirs.col(k) * null_dirs.col(k).transpose();
-  }
-
-  // u -> δ. Covariance: the 6x6 pose block is the marginal. Information of the pose marginal:
-  // the Schur complement of the scale in the joint information.
+  const UCovariance u = observableCovariance(acc, oeig.eigenvectors(), null_dirs, d, sigma2, rho, matches, transform,
+                                             metric, with_scale, o, &res);
   const Matrix7d kmat = centroidToOrigin(c, rho);
-  const Matrix7d kinv = kmat.inverse();
-  const Matrix7d cov7 = kmat * cov_u * kmat.transpose();  // log scale as 7th variable
-  res.covariance = cov7.topLeftCorner<6, 6>();
-  const Matrix7d info7 = kinv.transpose() * info_u * kinv;
-  res.information = info7.topLeftCorner<6, 6>();
-  if (with_scale && info7(6, 6) > 0.0) {
-    res.information -= info7.block<6, 1>(0, 6) * info7.block<1, 6>(6, 0) / info7(6, 6);
-  }
-  res.information = 0.5 * (res.information + res.information.transpose()).eval();
-
-  if (with_scale) {
-    Vector7d jd = Vector7d::Ones();
-    jd(6) = transform.scale();  // δσ = δs / s
-    res.covariance7 = jd.asDiagonal() * cov7 * jd.asDiagonal();
-    res.scale_stddev = std::sqrt(std::max(0.0, res.covariance7(6, 6)));
-  } else {
-    res.covariance7.topLeftCorner<6, 6>() = res.covariance;
-  }
+  fromUToDelta(u, kmat, transform, with_scale, &res);
 
   if (null_dirs.cols() > 0) {
-    // Name the dominant component of the weakest direction, mapped back to δ.
-    const Vector7d weakest = (Vector7d() << null_dirs.col(0), Eigen::VectorXd::Zero(7 - d)).finished();
-    Vector7d w = kmat * weakest;
-    w.head<3>() *= inv_rho;  // compare translation and rotation on the same footing
-    Eigen::Index arg = 0;
-    w.cwiseAbs().maxCoeff(&arg);
-    std::ostringstream msg;
-    msg << "covariance: " << null_dirs.cols() << " unobservable direction(s), weakest along " << kDirectionNames[arg]
-        << " (condition number " << res.condition_number << " > " << o.degeneracy_condition_threshold << ")";
-    res.status = Status::kDegenerate;
-    res.message = msg.str();
+    setDegenerate(null_dirs, kmat, d, inv_rho, o, &res);
   } else {
     res.status = Status::kOk;
-    if (o.model == CovarianceModel::kBlocks) {
-      const BlockSpread spread = blockSpreadCovariance(matches, transform, metric, with_scale);
-      if (spread.ok) {
-        const Matrix7d covered = coveringCovariance(logScaleCovariance(res, transform.scale()), spread.sandwich,
-                                                    &res.inflation);
-        res.covariance = covered.topLeftCorner<6, 6>();
-        res.information = res.covariance.ldlt().solve(Matrix6d::Identity());
-        res.information = 0.5 * (res.information + res.information.transpose()).eval();
-        if (with_scale) {
-          Vector7d jd = Vector7d::Ones();
-          jd(6) = transform.scale();
-          res.covariance7 = jd.asDiagonal() * covered * jd.asDiagonal();
-          res.scale_stddev = std::sqrt(std::max(0.0, res.covariance7(6, 6)));
-        } else {
-          res.covariance7.topLeftCorner<6, 6>() = res.covariance;
-        }
-        res.calibration_splits_used = spread.clusters;
-      }
-    }
-    std::ostringstream msg;
-    msg << "covariance (" << covarianceModelName(o.model) << ") from " << n << " correspondences, noise "
-        << res.noise_stddev << ", condition number " << res.condition_number;
-    if (o.model == CovarianceModel::kCalibrated) {
-      msg << ", inflation " << res.inflation << " from " << res.calibration_splits_used << " split(s)";
-    } else if (o.model == CovarianceModel::kBlocks) {
-      msg << ", block spread x" << res.inflation << " over " << res.calibration_splits_used << " block(s)";
-    }
-    res.message = msg.str();
+    if (o.model == CovarianceModel::kBlocks) applyBlockSpread(matches, transform, metric, with_scale, &res);
+    res.message = okMessage(res, n, o);
   }
   return res;
 }

@@ -503,40 +503,124 @@ std::vector<Eigen::Index> targetSample(Eigen::Index size, Eigen::Index count) {
   return out;
 }
 
+// The level's own source points in a tree (the reciprocal check and symmetric matching need
+// it), their normals and a sample of the target of the level's size (symmetric matching).
+struct LevelSource {
+  std::unique_ptr<KdTree> tree;
+  std::unique_ptr<LazyNormals> normals;
+  std::vector<Eigen::Index> reverse_targets;
+  double spacing = 0.0;
+};
+
+LevelSource levelSource(const Cloud& source, const LevelEnv& env) {
+  const IcpOptions& o = env.o;
+  const Cloud& target = env.tree.points();
+  const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
+  const bool symmetric = o.symmetric && plane;
+  LevelSource level;
+  if (o.reciprocal || symmetric) {
+    level.tree = std::make_unique<KdTree>(source);
+    level.spacing = medianSpacing(*level.tree);
+  }
+  if (symmetric) {
+    level.normals = std::make_unique<LazyNormals>(*level.tree, o.normal_neighbors);
+    level.reverse_targets = targetSample(target.cols(), source.cols());
+  }
+  return level;
+}
+
+// One minimisation step from the matches `*m` (weighted in place by the robust kernel):
+// point-to-point with its log-scale step clamped, or point-to-plane (symmetric when configured).
+Sim3 levelStep(const Cloud& moved, const MatchContext& ctx, const LevelEnv& env, const LevelSource& level,
+               double max_log_step, const Sim3& current, std::vector<Match>* m_io) {
+  const IcpOptions& o = env.o;
+  const Cloud& target = env.tree.points();
+  std::vector<Match>& m = *m_io;
+  const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
+  const bool symmetric = o.symmetric && plane;
+  Sim3 step;
+  if (o.error_metric == ErrorMetric::kPointToPoint) {
+    const double spread = applyKernel(moved, target, nullptr, o, ctx.spacing, &m);
+    step = pointToPointStep(moved, target, m, spread, env.anchors, current, o.estimate_scale);
+    const double ds = std::max(-max_log_step, std::min(max_log_step, std::log(step.scale())));
+    if (std::exp(ds) != step.scale()) {
+      // Scale clamped: keep the moved centroid where the step put it.
+      const double sc = std::exp(ds);
+      const Eigen::Vector3d mc = moved.rowwise().mean();
+      step = Sim3(sc, step.rotation(), step.apply(mc) - sc * (step.rotation() * mc));
+    }
+  } else {
+    env.normals.ensure(m);
+    std::vector<Match> reverse;
+    if (symmetric) {
+      reverse = reverseMatchAndReject(moved, ctx, *level.tree, level.reverse_targets, o);
+      std::vector<Eigen::Index> used;
+      for (const Match& r : reverse) used.push_back(r.source);
+      level.normals->ensureIndices(used);
+    }
+    PlaneSet set = planeSet(m, env.normals.normals(), reverse, symmetric ? &level.normals->normals() : nullptr,
+                            current.rotation());
+    applyPlaneKernel(moved, target, o, ctx.spacing, &set);
+    step = pointToPlaneStep(moved, target, set, env.anchors, current, o.estimate_scale, max_log_step);
+  }
+  return step;
+}
+
+// `t` with its scale clamped to [min_scale, max_scale], keeping the source centroid where `t`
+// puts it; `t` itself when its scale is within (or not comparable).
+Sim3 clampScale(const Sim3& t, double min_scale, double max_scale, const Eigen::Vector3d& source_centroid) {
+  if (!(t.scale() < min_scale || t.scale() > max_scale)) return t;
+  const double s = std::min(max_scale, std::max(min_scale, t.scale()));
+  const Eigen::Vector3d at = t.apply(source_centroid);
+  return Sim3(s, t.rotation(), at - s * (t.rotation() * source_centroid));
+}
+
+using Twist = Eigen::Matrix<double, 7, 1>;
+
+// Extrapolation: ICP creeps along shallow valleys with steps that shrink by a nearly
+// constant ratio r in a nearly constant direction; then the rest of that geometric series,
+// r / (1 - r) times the last step, is taken at once (capped). A wrong guess costs one
+// iteration: the next step points back, and no extrapolation follows a reversal.
+// `aa` is the step's rotation, `mc` the moved centroid before it and `moved_by` how far the step
+// moved it. @return whether *current jumped
+bool extrapolate(const Sim3& step, const Eigen::AngleAxisd& aa, const Eigen::Vector3d& mc,
+                 const Eigen::Vector3d& moved_by, const Twist& previous_twist, const Twist& twist, const LevelEnv& env,
+                 const Eigen::Vector3d& source_centroid, Sim3* current) {
+  const double n0 = previous_twist.norm(), n1 = twist.norm();
+  const double cosine = n0 > 0.0 && n1 > 0.0 ? previous_twist.dot(twist) / (n0 * n1) : 0.0;
+  const double r = n0 > 0.0 ? n1 / n0 : 1.0;
+  if (cosine > kExtrapolationMinCosine && r < 1.0) {
+    const double f = std::min(kExtrapolationMaxFactor, r / (1.0 - r));
+    const double s = std::exp(f * std::log(step.scale()));
+    const Eigen::Matrix3d rot = expSO3(f * aa.angle() * aa.axis());
+    const Eigen::Vector3d c = step.apply(mc);  // the moved centroid after this step
+    Sim3 extra(s, rot, c - s * (rot * c) + f * moved_by);
+    Sim3 jumped = extra * *current;
+    if (jumped.matrix().allFinite()) {
+      *current = clampScale(jumped, env.min_scale, env.max_scale, source_centroid);
+      return true;
+    }
+  }
+  return false;
+}
+
 // Iterates match / reject / weight / minimise on `source` from `*current` until the differential
 // check passes at `tolerance` times the configured thresholds, or the iteration limit.
 LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double tolerance, int iteration_offset,
                           Sim3* current) {
   const IcpOptions& o = env.o;
-  const Cloud& target = env.tree.points();
   LevelOutcome out;
   const double max_log_step = std::log1p(o.max_scale_step);
   const Eigen::Vector3d source_centroid = source.rowwise().mean();
-  const double min_scale = env.min_scale, max_scale = env.max_scale;
   const double target_radius = env.target_radius;
-  // The reciprocal check and symmetric matching need the level's own source points in a tree;
-  // symmetric matching their normals too, and a sample of the target of the level's size.
-  const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
-  const bool symmetric = o.symmetric && plane;
-  std::unique_ptr<KdTree> source_tree;
-  std::unique_ptr<LazyNormals> source_normals;
-  std::vector<Eigen::Index> reverse_targets;
-  double source_spacing = 0.0;
-  if (o.reciprocal || symmetric) {
-    source_tree = std::make_unique<KdTree>(source);
-    source_spacing = medianSpacing(*source_tree);
-  }
-  if (symmetric) {
-    source_normals = std::make_unique<LazyNormals>(*source_tree, o.normal_neighbors);
-    reverse_targets = targetSample(target.cols(), source.cols());
-  }
-  Eigen::Matrix<double, 7, 1> previous_twist = Eigen::Matrix<double, 7, 1>::Zero();
+  const LevelSource level = levelSource(source, env);
+  Twist previous_twist = Twist::Zero();
   bool has_previous = false, extrapolated = false;
   for (; out.iterations < o.max_iterations; ++out.iterations) {
     const int iter = iteration_offset + out.iterations;
     const Cloud moved = current->apply(source);
-    const MatchContext ctx{env.tree, source_tree.get(), *current,
-                           std::max(env.target_spacing, source_spacing * current->scale())};
+    const MatchContext ctx{env.tree, level.tree.get(), *current,
+                           std::max(env.target_spacing, level.spacing * current->scale())};
     std::vector<Match> m = matchAndReject(moved, ctx, o);
     if (static_cast<int>(m.size()) < o.min_correspondences) {
       out.failed = true;
@@ -544,43 +628,14 @@ LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double toler
                     " (need " + std::to_string(o.min_correspondences) + ")";
       return out;
     }
-    Sim3 step;
-    if (o.error_metric == ErrorMetric::kPointToPoint) {
-      const double spread = applyKernel(moved, target, nullptr, o, ctx.spacing, &m);
-      step = pointToPointStep(moved, target, m, spread, env.anchors, *current, o.estimate_scale);
-      const double ds = std::max(-max_log_step, std::min(max_log_step, std::log(step.scale())));
-      if (std::exp(ds) != step.scale()) {
-        // Scale clamped: keep the moved centroid where the step put it.
-        const double sc = std::exp(ds);
-        const Eigen::Vector3d mc = moved.rowwise().mean();
-        step = Sim3(sc, step.rotation(), step.apply(mc) - sc * (step.rotation() * mc));
-      }
-    } else {
-      env.normals.ensure(m);
-      std::vector<Match> reverse;
-      if (symmetric) {
-        reverse = reverseMatchAndReject(moved, ctx, *source_tree, reverse_targets, o);
-        std::vector<Eigen::Index> used;
-        for (const Match& r : reverse) used.push_back(r.source);
-        source_normals->ensureIndices(used);
-      }
-      PlaneSet set = planeSet(m, env.normals.normals(), reverse, symmetric ? &source_normals->normals() : nullptr,
-                              current->rotation());
-      applyPlaneKernel(moved, target, o, ctx.spacing, &set);
-      step = pointToPlaneStep(moved, target, set, env.anchors, *current, o.estimate_scale, max_log_step);
-    }
+    const Sim3 step = levelStep(moved, ctx, env, level, max_log_step, *current, &m);
     Sim3 next = step * *current;
     if (!next.matrix().allFinite()) {
       out.failed = true;
       out.message = "icp: numerical failure at iteration " + std::to_string(iter);
       return out;
     }
-    if (next.scale() < min_scale || next.scale() > max_scale) {
-      const double s = std::min(max_scale, std::max(min_scale, next.scale()));
-      // Keep the source centroid where the step put it while clamping the scale.
-      const Eigen::Vector3d at = next.apply(source_centroid);
-      next = Sim3(s, next.rotation(), at - s * (next.rotation() * source_centroid));
-    }
+    next = clampScale(next, env.min_scale, env.max_scale, source_centroid);
     // Differential check on how far the step moved the source centroid, rotated and scaled.
     const Eigen::Vector3d mc = moved.rowwise().mean();
     const Eigen::Vector3d moved_by = step.apply(mc) - mc;
@@ -589,7 +644,7 @@ LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double toler
     const double dsc = std::abs(next.scale() / current->scale() - 1.0);
     // The step as a 7-vector of displacements about the moved centroid (translation, rotation
     // and log scale times the target radius), for the extrapolation below.
-    Eigen::Matrix<double, 7, 1> twist;
+    Twist twist;
     const Eigen::AngleAxisd aa(step.rotation());
     twist << moved_by, aa.angle() * aa.axis() * target_radius, std::log(step.scale()) * target_radius;
     *current = next;
@@ -600,32 +655,9 @@ LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double toler
       return out;
     }
     extrapolated = false;
-    // Extrapolation: ICP creeps along shallow valleys with steps that shrink by a nearly
-    // constant ratio r in a nearly constant direction; then the rest of that geometric series,
-    // r / (1 - r) times the last step, is taken at once (capped). A wrong guess costs one
-    // iteration: the next step points back, and no extrapolation follows a reversal.
     if (o.extrapolation && has_previous) {
-      const double n0 = previous_twist.norm(), n1 = twist.norm();
-      const double cosine = n0 > 0.0 && n1 > 0.0 ? previous_twist.dot(twist) / (n0 * n1) : 0.0;
-      const double r = n0 > 0.0 ? n1 / n0 : 1.0;
-      if (cosine > kExtrapolationMinCosine && r < 1.0) {
-        const double f = std::min(kExtrapolationMaxFactor, r / (1.0 - r));
-        const double s = std::exp(f * std::log(step.scale()));
-        const Eigen::Matrix3d rot = expSO3(f * aa.angle() * aa.axis());
-        const Eigen::Vector3d c = step.apply(mc);  // the moved centroid after this step
-        Sim3 extra(s, rot, c - s * (rot * c) + f * moved_by);
-        Sim3 jumped = extra * *current;
-        if (jumped.matrix().allFinite()) {
-          if (jumped.scale() < min_scale || jumped.scale() > max_scale) {
-            const double sc = std::min(max_scale, std::max(min_scale, jumped.scale()));
-            const Eigen::Vector3d at = jumped.apply(source_centroid);
-            jumped = Sim3(sc, jumped.rotation(), at - sc * (jumped.rotation() * source_centroid));
-          }
-          *current = jumped;
-          extrapolated = true;
-          ++out.extrapolations;
-        }
-      }
+      extrapolated = extrapolate(step, aa, mc, moved_by, previous_twist, twist, env, source_centroid, current);
+      if (extrapolated) ++out.extrapolations;
     }
     previous_twist = twist;
     has_previous = !extrapolated;  // the step after a jump starts a new series
