@@ -71,6 +71,53 @@ class DepthLookup {
   std::map<const MapKeyframe*, std::unique_ptr<KeyframeDepth>> depths_;
 };
 
+// The relative pose's rotation in the maps' frames, with its covariance from the inliers'
+// epipolar residuals (rotated from the target camera's axes into the target map's).
+RotationMeasurement rotationMeasurement(const CandidatePair& c, const AgentMap& source, const AgentMap& target,
+                                        const Sim3& cam_s, const Sim3& cam_t, const MergeOptions& o) {
+  std::vector<Eigen::Vector3d> bt, bs;
+  for (std::size_t k = 0; k < c.matches.size(); ++k) {
+    bt.push_back(target.camera.bearing(c.matches.pixels_a[k].x(), c.matches.pixels_a[k].y()));
+    bs.push_back(source.camera.bearing(c.matches.pixels_b[k].x(), c.matches.pixels_b[k].y()));
+  }
+  const double focal = 0.5 * (source.camera.focal() + target.camera.focal());
+  // Floor: half the RANSAC pixel error, the noise the inlier gate was drawn for.
+  const Eigen::Matrix3d rot_cov =
+      relativeRotationCovariance(bt, bs, c.pose, focal, 0.5 * o.relative_pose.pixel_error);
+  RotationMeasurement m;
+  m.rotation = cam_t.rotation() * c.pose.rotation * cam_s.rotation().transpose();
+  m.covariance = cam_t.rotation() * rot_cov * cam_t.rotation().transpose();
+  return m;
+}
+
+// The relative pose's rotation and the pair's own depth matches measure the same rotation
+// independently. When they disagree beyond both their noise, the relative pose is the wrong one
+// of a twin (a mostly planar view gives two essential matrices that fit the same inliers) or a
+// wrong match set, and its rotation, far more confident than the matches, would carry the
+// pooled estimate with it: the pair is not used. (On a simulated room with 15 % overlap, a pair
+// seen 64 deg apart had 83 inliers and a relative rotation 23.6 deg wrong with a 1-sigma of
+// 0.07 deg, while its 48 depth matches alone fit within 1.1 deg of the truth: squared
+// Mahalanobis distance 173; the pooled estimate went 22 deg wrong and the merge was refused.)
+// The matches are the Kalman inliers: fitting every depth match instead flagged more of the
+// real LSD-SLAM pairs, whose semi-dense depths are noisier than their variance says, and left
+// 2 of 34 pairs to merge lsd_slam_7scenes b->a, 7.6 % from the truth with a 2.1 % stddev.
+// Returns why the pair is not used, or "" when the two agree (or the matches alone do not
+// determine a similarity, and so cannot contradict the relative pose).
+std::string rotationDisagreement(const std::vector<PointMatch3>& matches, const RotationMeasurement& rotation,
+                                 const Sim3& start, const SimilarityFitOptions& fo) {
+  const SimilarityFit alone = fitSimilarity(matches, {}, start, fo);
+  if (!alone.ok) return "";
+  const Eigen::Vector3d dr = similarityDifference(Sim3(1.0, rotation.rotation, Eigen::Vector3d::Zero()),
+                                                  Sim3(1.0, alone.estimate.rotation(), Eigen::Vector3d::Zero()))
+                                 .segment<3>(3);
+  const Eigen::LDLT<Eigen::Matrix3d> ldlt(rotation.covariance + alone.covariance.block<3, 3>(3, 3));
+  const double chi2 = ldlt.info() == Eigen::Success ? dr.dot(ldlt.solve(dr)) : 0.0;
+  if (chi2 <= kRotationAgreementChi2) return "";
+  return "its relative pose's rotation disagrees with its own " + std::to_string(matches.size()) +
+         " depth matches by " + fmt(dr.norm() * 180.0 / M_PI) + " deg (squared Mahalanobis distance " + fmt(chi2) +
+         " > " + fmt(kRotationAgreementChi2) + "): a planar twin or a wrong match set";
+}
+
 // The pair's Kalman scale, own estimate and map-frame matches.
 PairEvidence pairEvidence(const CandidatePair& c, int group, const AgentMap& source, const AgentMap& target,
                           DepthLookup* depths, const MergeOptions& o) {
@@ -126,19 +173,7 @@ PairEvidence pairEvidence(const CandidatePair& c, int group, const AgentMap& sou
     m.group = group;
     e.matches.push_back(m);
   }
-  // The relative pose's rotation in the maps' frames, with its covariance from the inliers'
-  // epipolar residuals (rotated from the target camera's axes into the target map's).
-  std::vector<Eigen::Vector3d> bt, bs;
-  for (std::size_t k = 0; k < c.matches.size(); ++k) {
-    bt.push_back(target.camera.bearing(c.matches.pixels_a[k].x(), c.matches.pixels_a[k].y()));
-    bs.push_back(source.camera.bearing(c.matches.pixels_b[k].x(), c.matches.pixels_b[k].y()));
-  }
-  const double focal = 0.5 * (source.camera.focal() + target.camera.focal());
-  // Floor: half the RANSAC pixel error, the noise the inlier gate was drawn for.
-  const Eigen::Matrix3d rot_cov =
-      relativeRotationCovariance(bt, bs, c.pose, focal, 0.5 * o.relative_pose.pixel_error);
-  e.rotation.rotation = cam_t.rotation() * c.pose.rotation * cam_s.rotation().transpose();
-  e.rotation.covariance = cam_t.rotation() * rot_cov * cam_t.rotation().transpose();
+  e.rotation = rotationMeasurement(c, source, target, cam_s, cam_t, o);
   e.rotation.group = group;
   SimilarityFitOptions fo;
   fo.estimate_scale = true;
@@ -147,32 +182,10 @@ PairEvidence pairEvidence(const CandidatePair& c, int group, const AgentMap& sou
     e.note = "its " + std::to_string(e.matches.size()) + " matches do not determine a similarity";
     return e;
   }
-  // The relative pose's rotation and the pair's own depth matches measure the same rotation
-  // independently. When they disagree beyond both their noise, the relative pose is the wrong one
-  // of a twin (a mostly planar view gives two essential matrices that fit the same inliers) or a
-  // wrong match set, and its rotation, far more confident than the matches, would carry the
-  // pooled estimate with it: the pair is not used. (On a simulated room with 15 % overlap, a pair
-  // seen 64 deg apart had 83 inliers and a relative rotation 23.6 deg wrong with a 1-sigma of
-  // 0.07 deg, while its 48 depth matches alone fit within 1.1 deg of the truth: squared
-  // Mahalanobis distance 173; the pooled estimate went 22 deg wrong and the merge was refused.)
-  // The matches are the Kalman inliers: fitting every depth match instead flagged more of the
-  // real LSD-SLAM pairs, whose semi-dense depths are noisier than their variance says, and left
-  // 2 of 34 pairs to merge lsd_slam_7scenes b->a, 7.6 % from the truth with a 2.1 % stddev.
-  const SimilarityFit alone = fitSimilarity(e.matches, {}, fit.estimate, fo);
-  if (alone.ok) {
-    const Eigen::Vector3d dr =
-        similarityDifference(Sim3(1.0, e.rotation.rotation, Eigen::Vector3d::Zero()),
-                             Sim3(1.0, alone.estimate.rotation(), Eigen::Vector3d::Zero()))
-            .segment<3>(3);
-    const Eigen::Matrix3d c = e.rotation.covariance + alone.covariance.block<3, 3>(3, 3);
-    const Eigen::LDLT<Eigen::Matrix3d> ldlt(c);
-    const double chi2 = ldlt.info() == Eigen::Success ? dr.dot(ldlt.solve(dr)) : 0.0;
-    if (chi2 > kRotationAgreementChi2) {
-      e.note = "its relative pose's rotation disagrees with its own " + std::to_string(e.matches.size()) +
-               " depth matches by " + fmt(dr.norm() * 180.0 / M_PI) + " deg (squared Mahalanobis distance " +
-               fmt(chi2) + " > " + fmt(kRotationAgreementChi2) + "): a planar twin or a wrong match set";
-      return e;
-    }
+  const std::string disagreement = rotationDisagreement(e.matches, e.rotation, fit.estimate, fo);
+  if (!disagreement.empty()) {
+    e.note = disagreement;
+    return e;
   }
   e.estimate = fit.estimate;
   e.covariance = fit.covariance;
