@@ -539,17 +539,28 @@ TEST_F(Live, MergesAndAResentKeyframeIdReplacesTheOldOne) {
 
 // --- merge_node_requests.test (issue 14): the request, camera conventions, repeatability ---------
 
-class Requests : public Live {};
+class Requests : public Live {
+ protected:
+  // Publishes both agents and waits until the node holds all of their keyframes; with
+  // `last_cloud`, half a second more for the last map cloud. False when the node never does.
+  bool publishBothAgents(bool last_cloud) {
+    DiagnosticsWatcher diagnostics(nh_);
+    publishAgent("agent_a");
+    publishAgent("agent_b");
+    if (!diagnostics.waitFor("agent agent_a", "keyframe_ids", agentIdList("agent_a")) ||
+        !diagnostics.waitFor("agent agent_b", "keyframe_ids", agentIdList("agent_b"))) {
+      return false;
+    }
+    if (last_cloud) ros::WallDuration(0.5).sleep();
+    return true;
+  }
+};
 
 // An empty request ("{}") lets the pipeline choose the pair; a given id is taken at its word: 0 is
 // an id like any other (agent_a has it, agent_b has 1000, 1001, 1002), negative ids are unknown,
 // and an id without its use_*_keyframe flag is refused instead of silently ignored.
 TEST_F(Requests, AnEmptyRequestIsAutomaticAndGivenIdsAreTakenAtTheirWord) {
-  DiagnosticsWatcher diagnostics(nh_);
-  publishAgent("agent_a");
-  publishAgent("agent_b");
-  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", agentIdList("agent_a")));
-  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "keyframe_ids", agentIdList("agent_b")));
+  ASSERT_TRUE(publishBothAgents(false));
   const Response automatic = callMerge(pcr_pro::MergeMaps::Request());
   ASSERT_EQ(automatic.status, Response::OK) << automatic.message;
   expectNear(edgeFromMsg(automatic.edge).target_source, truth(), "empty request");
@@ -606,12 +617,7 @@ TEST_F(Requests, ASuccessfulMergeWritesThePoseGraph) {
   std::string file;
   ASSERT_TRUE(ros::param::get("/merge_node/g2o_file", file));
   std::filesystem::remove(file);
-  DiagnosticsWatcher diagnostics(nh_);
-  publishAgent("agent_a");
-  publishAgent("agent_b");
-  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", agentIdList("agent_a")));
-  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "keyframe_ids", agentIdList("agent_b")));
-  ros::WallDuration(0.5).sleep();  // the last cloud
+  ASSERT_TRUE(publishBothAgents(true));
   const Response r = callMerge();
   ASSERT_EQ(r.status, Response::OK) << r.message;
   std::ifstream in(file);
@@ -638,12 +644,7 @@ TEST_F(Requests, ASuccessfulMergeWritesThePoseGraph) {
 
 // ~seed: the same data merged twice gives the same edge, bit for bit.
 TEST_F(Requests, IdenticalCallsGiveIdenticalEdges) {
-  DiagnosticsWatcher diagnostics(nh_);
-  publishAgent("agent_a");
-  publishAgent("agent_b");
-  ASSERT_TRUE(diagnostics.waitFor("agent agent_a", "keyframe_ids", agentIdList("agent_a")));
-  ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "keyframe_ids", agentIdList("agent_b")));
-  ros::WallDuration(0.5).sleep();  // the last cloud
+  ASSERT_TRUE(publishBothAgents(true));
   const Response a = callMerge(), b = callMerge();
   ASSERT_EQ(a.status, Response::OK) << a.message;
   ASSERT_EQ(b.status, Response::OK) << b.message;

@@ -13,12 +13,26 @@
 #include "common/data_dir.h"
 #include "common/geometry_checks.h"
 #include "pcr_pro/geometry/sim3.h"
+#include "pcr_pro/sim/simulator.h"
 
 namespace pcr_pro {
 namespace test {
 
 inline double deg(double rad) { return rad * 180.0 / M_PI; }
 inline double rad(double deg) { return deg * M_PI / 180.0; }
+
+/// The merge tests' simulated world: agents sweeping 60 deg of azimuth with a keyframe every
+/// 15 deg or 0.45 m (about 5 keyframes each, as in the bench's worlds), no drift, depth images.
+inline SimulatorOptions mergeTestWorld(std::uint64_t seed, int agents, double overlap) {
+  SimulatorOptions o;
+  o.seed = seed;
+  o.agents = agents;
+  o.layout.overlap = overlap;
+  o.trajectory.azimuth_span_deg = 60.0;
+  o.trajectory.keyframe_angle_deg = 15.0;
+  o.trajectory.keyframe_distance = 0.45;
+  return o;
+}
 
 /// Rotation of `angle` about a random axis drawn from rng.
 inline Eigen::Matrix3d randomRotation(std::mt19937& rng, double angle) {

@@ -134,14 +134,7 @@ TEST(SimilarityFit, AdjointMapsPerturbationsOfTheInverse) {
 class SimWorld : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    SimulatorOptions o;
-    o.seed = 11;
-    o.agents = 3;
-    o.layout.overlap = 0.5;
-    o.trajectory.azimuth_span_deg = 60.0;
-    o.trajectory.keyframe_angle_deg = 15.0;
-    o.trajectory.keyframe_distance = 0.45;
-    sim_ = new Simulation(simulate(o));
+    sim_ = new Simulation(simulate(test::mergeTestWorld(11, 3, 0.5)));
   }
   static void TearDownTestSuite() { delete sim_; }
   static const AgentMap& map(int i) { return sim_->agents[static_cast<std::size_t>(i)].map; }
@@ -244,13 +237,8 @@ TEST_F(SimWorld, NonOverlappingMapsAreRefused) {
 // as real LSD-SLAM runs give: several of the verified pairs look at one wall each, where the
 // relative pose has a planar twin that fits the same inliers.
 TEST(LowOverlapWorld, ARelativePoseThatDisagreesWithItsOwnDepthMatchesIsNotUsed) {
-  SimulatorOptions o;
-  o.seed = 1000;
+  SimulatorOptions o = test::mergeTestWorld(1000, 2, 0.15);
   o.camera = PinholeCamera{262.5, 262.5, 159.5, 119.5, 320, 240};
-  o.layout.overlap = 0.15;
-  o.trajectory.azimuth_span_deg = 60.0;
-  o.trajectory.keyframe_angle_deg = 15.0;
-  o.trajectory.keyframe_distance = 0.45;
   const Simulation sim = simulate(o);
   const AgentMap& a = sim.agents[0].map;
   const AgentMap& b = sim.agents[1].map;

@@ -14,6 +14,7 @@
 #include "pcr_pro/io/pose_graph.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/sim/simulator.h"
+#include "test_helpers.h"
 
 namespace pcr_pro {
 namespace {
@@ -255,14 +256,7 @@ TEST(PoseGraph, TumHasEveryKeyframeInTheTargetFrame) {
 // the exported edge against the merge's own keyframe edge (report.keyframe_edge, computed by the
 // pipeline from the same covariance through the target anchor's frame instead of the source's).
 TEST(PoseGraph, RealMergeOfASimulatedWorld) {
-  SimulatorOptions o;
-  o.seed = 11;
-  o.agents = 2;
-  o.layout.overlap = 0.5;
-  o.trajectory.azimuth_span_deg = 60.0;
-  o.trajectory.keyframe_angle_deg = 15.0;
-  o.trajectory.keyframe_distance = 0.45;
-  const Simulation sim = simulate(o);
+  const Simulation sim = simulate(test::mergeTestWorld(11, 2, 0.5));
   const AgentMap& a = sim.agents[0].map;
   const AgentMap& b = sim.agents[1].map;
   const MergeResult result = mergeMaps(b, a, MergeRequest(), MergeOptions());
