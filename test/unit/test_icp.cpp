@@ -154,6 +154,42 @@ TEST(Icp, InvalidOptionsAndEmptyCloudsThrow) {
   EXPECT_THROW(alignIcp(Cloud(3, 0), c, Sim3(), IcpOptions()), InputError);
 }
 
+// Nearest-neighbour pairs of two independent noisy samples share points: a target point nearest
+// to two source points puts its noise into both residuals, and symmetric matching finds many pairs
+// in both directions. The final correspondences measure how often the same noise is counted
+// (Correspondences::redundancy) instead of assuming 1 one way and 2 both ways. For equally dense
+// samples of one surface the count of pairs per point is roughly Poisson (mean 1 one way, 2 both
+// ways), so Σ m² / Σ m is about 1.5 and 2.5; a constant 1 or 2 would undercount it.
+TEST(Icp, RedundancyMeasuresTheNoiseThatPairsShare) {
+  std::mt19937 rng(31);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  const Sim3 truth(1.0, test::randomRotation(rng, 0.4), Eigen::Vector3d(0.3, -0.2, 0.1));
+  Cloud target = test::syntheticScene(5000, 4.0, rng);
+  Cloud other = test::syntheticScene(5000, 4.0, rng);
+  for (int i = 0; i < target.cols(); ++i) target.col(i) += Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+  for (int i = 0; i < other.cols(); ++i) other.col(i) += Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+  const Cloud source = truth.inverse().apply(other);
+  IcpOptions both, one_way;
+  one_way.symmetric = false;
+  const IcpResult b = alignIcp(source, target, truth, both);
+  const IcpResult o = alignIcp(source, target, truth, one_way);
+  ASSERT_EQ(b.status, Status::kOk) << b.message;
+  ASSERT_EQ(o.status, Status::kOk) << o.message;
+  std::printf("redundancy: symmetric %.2f, one way %.2f\n", b.matches.redundancy, o.matches.redundancy);
+  EXPECT_GT(b.matches.redundancy, 2.1);
+  EXPECT_LT(b.matches.redundancy, 3.2);
+  EXPECT_GT(o.matches.redundancy, 1.2);
+  EXPECT_LT(o.matches.redundancy, 2.0);
+  // The target's own points with fresh noise (1 cm against about 6 cm spacing): nearly every
+  // source point is nearest to its own twin, the pairs are one-to-one and share almost nothing.
+  Cloud twin = target;
+  for (int i = 0; i < twin.cols(); ++i) twin.col(i) += Eigen::Vector3d(noise(rng), noise(rng), noise(rng));
+  const IcpResult t = alignIcp(truth.inverse().apply(twin), target, truth, one_way);
+  ASSERT_EQ(t.status, Status::kOk) << t.message;
+  std::printf("redundancy: one way on twins %.2f\n", t.matches.redundancy);
+  EXPECT_LT(t.matches.redundancy, 1.15);
+}
+
 TEST(Icp, UmeyamaIsExactOnNoiselessPairs) {
   std::mt19937 rng(12);
   const Cloud src = Cloud::Random(3, 30);

@@ -132,9 +132,11 @@ struct Correspondences {
   double residual_scale = 0.0;
   /// Median nearest-neighbour spacing of the target cloud [target units]; 0 when unknown.
   double spacing = 0.0;
-  /// How many times the correspondences measure the same surfaces [-], >= 1: 2 with symmetric
-  /// matching (each direction covers the overlap once, with the same noise), so that the closed
-  /// form counts each piece of evidence once.
+  /// How many times the correspondences count each point's noise [-], >= 1 (the design effect
+  /// of the pairs sharing points): 1 for one-to-one pairs, 2 when every pair is found in both
+  /// directions of symmetric matching, more when nearest-neighbour matching uses some points
+  /// several times. The closed form multiplies the noise variance by it, so that each point's
+  /// noise counts once.
   double redundancy = 1.0;
 };
 
