@@ -25,6 +25,9 @@ struct GateVerdict {
   double rotation_correction_deg = 0.0;    ///< rotation between refined and keyframe estimates [deg]
   double scale_disagreement = 0.0;         ///< |s_refined / s_keyframe - 1| [-]
   double overlap = 0.0;                    ///< MapRegistration::overlap() of the reported estimate
+  /// Refused because the keyframe estimate disagrees with the refinement and the map clouds fit
+  /// the refined estimate clearly better: the keyframe evidence is the suspect one.
+  bool clouds_prefer_refinement = false;
 };
 
 /// Stage 4 of the merge (see the file comment).

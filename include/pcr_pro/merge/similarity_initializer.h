@@ -35,6 +35,8 @@ struct PairEvidence {
   Sim3 estimate;              ///< the pair's own S_target_source
   Matrix7d covariance = Matrix7d::Zero();  ///< of estimate (similarity_fit.h convention)
   bool used = false;     ///< part of the pooled estimate
+  /// has an estimate and lies within merge.local_keyframes of the best pair: a candidate for pooling
+  bool in_neighbourhood = false;
   std::string note;      ///< why not used, or how it was used
   double consistency_chi2 = 0.0;  ///< squared Mahalanobis distance to the pooled estimate
   /// The pair's Kalman-inlier matches as map points (source map, target map) with covariances.
@@ -89,7 +91,21 @@ class SimilarityInitializer {
    */
   KeyframeEstimate run(const AgentMap& source, const AgentMap& target, const FrontEndResult& front) const;
 
+  /**
+   * @brief The keyframe estimate pooled again around a hypothesis that other evidence supports
+   * (the refinement on the map clouds), for when the pairs split into camps: the pairs kept are
+   * those within four times the second-closest pair's distance of the hypothesis, or within
+   * their own noise of it (merge.pair_consistency_chi2); the others are dropped with the reason.
+   * The hypothesis only chooses the pairs: the estimate and its covariance are theirs alone.
+   * @param[in] keyframes a result of run() with status kOk
+   * @param[in] hypothesis S_target_source
+   */
+  KeyframeEstimate poolAround(const KeyframeEstimate& keyframes, const Sim3& hypothesis) const;
+
  private:
+  /// Pools out's candidate pairs (used): consensus around the medoid pair, or around hypothesis.
+  void pool(const Sim3* hypothesis, KeyframeEstimate* out) const;
+
   MergeOptions options_;
 };
 

@@ -129,6 +129,7 @@ bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refineme
                  fmt(100 * overlap_refined) + " % against " + fmt(100 * overlap_keyframes) +
                  " % at the keyframe estimate): the keyframe evidence is not trusted";
     v->overlap = overlap_keyframes;
+    v->clouds_prefer_refinement = true;
     return true;
   }
   const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);

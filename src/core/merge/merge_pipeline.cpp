@@ -6,6 +6,7 @@
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
+#include <utility>
 
 #include "pcr_pro/registration/scale_detection.h"
 
@@ -52,6 +53,7 @@ bool poseCovariance(const Matrix7d& cov7, Matrix6d* cov, Matrix6d* info) {
 }
 
 void reportPairs(const KeyframeEstimate& kf, RegistrationReport* rep) {
+  rep->keyframe_pairs.clear();
   for (const PairEvidence& e : kf.pairs) {
     KeyframePairReport p;
     p.source_keyframe = e.source_keyframe;
@@ -167,6 +169,50 @@ void recordVerdict(const GateVerdict& verdict, RegistrationReport* rep, MergeDia
   rep->refinement_chi2 = verdict.refinement_chi2;
 }
 
+// The keyframe estimate's pairs, counts, anchor and similarity into the report and diagnostics.
+void recordKeyframes(const KeyframeEstimate& kf, RegistrationReport* rep, MergeDiagnostics* diag) {
+  rep->timings.scale = kf.ms;
+  reportPairs(kf, rep);
+  diag->used_pairs = kf.used_pairs;
+  diag->dropped_pairs = kf.dropped_pairs;
+  diag->distant_pairs = kf.distant_pairs;
+  if (kf.status == Status::kOk) recordKeyframeEstimate(kf, kf.pairs[static_cast<std::size_t>(kf.anchor)], rep, diag);
+}
+
+// The keyframe pairs can split into camps that disagree, each with its own relative poses and
+// depth matches (on simulated 15 % overlaps without depth images, two of four verified pairs had
+// the wrong one of the two essential matrices a mostly planar view allows, 9 and 24 deg off, and
+// the medoid of a two-against-two split is either camp). The pooled estimate then lies between
+// the camps, the refinement on the map clouds converges to one of them, and the gates refuse
+// because the clouds fit the refinement better than the keyframe estimate. Two independent
+// kinds of evidence can still agree: the keyframe estimate is pooled again from the pairs that
+// agree with the refinement (at least two, and not the same pairs as before), refined again from
+// there, and judged again by the same gates. Nothing is taken from the first refinement but the
+// choice of pairs. @return true when this verdict replaces the refusal
+bool arbitrate(const SimilarityInitializer& initializer, const MergeGates& gates, const MapRegistration& registration,
+               KeyframeEstimate* kf, Refinement* refinement, GateVerdict* verdict) {
+  int candidates = 0;
+  for (const PairEvidence& e : kf->pairs) candidates += e.in_neighbourhood ? 1 : 0;
+  if (candidates < 3) return false;
+  KeyframeEstimate sided = initializer.poolAround(*kf, refinement->estimate);
+  if (sided.status != Status::kOk || sided.used_pairs < 2) return false;
+  bool same_pairs = true;
+  for (std::size_t i = 0; i < kf->pairs.size(); ++i) same_pairs = same_pairs && sided.pairs[i].used == kf->pairs[i].used;
+  if (same_pairs) return false;
+  Refinement again = registration.refine(sided.estimate, sided.matches);
+  GateVerdict judged = gates.judge(sided, again, registration);
+  if (judged.status != Status::kOk && judged.status != Status::kDegenerate) return false;
+  judged.message = "the keyframe pairs split and the map clouds side with " + std::to_string(sided.used_pairs) +
+                   " of them (" + verdict->message.substr(verdict->message.find(':') + 2) + "); " + judged.message;
+  sided.ms += kf->ms;
+  again.ms_icp += refinement->ms_icp;
+  again.ms_covariance += refinement->ms_covariance;
+  *kf = std::move(sided);
+  *refinement = std::move(again);
+  *verdict = std::move(judged);
+  return true;
+}
+
 // The message of a successful merge.
 std::string mergedMessage(const KeyframeEstimate& kf, const PairEvidence& anchor, const MergeDiagnostics& diag,
                           const GateVerdict& verdict) {
@@ -209,15 +255,9 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   }
 
   // 2. Keyframe estimate from every verified pair.
-  const KeyframeEstimate kf = initializer_.run(source, target, front);
-  rep.timings.scale = kf.ms;
-  reportPairs(kf, &rep);
-  diag.used_pairs = kf.used_pairs;
-  diag.dropped_pairs = kf.dropped_pairs;
-  diag.distant_pairs = kf.distant_pairs;
+  KeyframeEstimate kf = initializer_.run(source, target, front);
+  recordKeyframes(kf, &rep, &diag);
   if (kf.status != Status::kOk) return finish(kf.status, kf.message);
-  const PairEvidence& anchor = kf.pairs[static_cast<std::size_t>(kf.anchor)];
-  recordKeyframeEstimate(kf, anchor, &rep, &diag);
 
   // 3. Refinement on the map clouds.
   MapRegistration registration(options_.registration, options_.merge.refine_scale);
@@ -225,12 +265,16 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   rep.timings.filters = registration.filterMs();
   if (!cloud_problem.empty()) return finish(Status::kInvalidInput, cloud_problem);
   recordScaleDetection(registration, options_.registration.scale_detection, &rep);
-  const Refinement refinement = registration.refine(kf.estimate, kf.matches);
-  recordRefinement(refinement, &rep, &diag);
+  Refinement refinement = registration.refine(kf.estimate, kf.matches);
 
-  // 4. Gates.
+  // 4. Gates (and, when the keyframe pairs split, the side the clouds take).
   GateVerdict verdict = gates_.judge(kf, refinement, registration);
+  if (verdict.clouds_prefer_refinement && arbitrate(initializer_, gates_, registration, &kf, &refinement, &verdict)) {
+    recordKeyframes(kf, &rep, &diag);
+  }
+  recordRefinement(refinement, &rep, &diag);
   recordVerdict(verdict, &rep, &diag);
+  const PairEvidence& anchor = kf.pairs[static_cast<std::size_t>(kf.anchor)];
   if (!options_.merge.refine_scale && verdict.refinement_kept) {
     // Scale policy: the refinement kept the keyframe scale, which keeps its uncertainty.
     verdict.covariance(6, 6) = kf.covariance(6, 6);

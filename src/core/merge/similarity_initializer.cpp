@@ -467,6 +467,40 @@ void selectPooledMatches(KeyframeEstimate* out) {
   }
 }
 
+// Which pairs agree with a hypothesis of S_target_source that the map clouds support (the
+// refinement), when the pairs split into camps that the medoid cannot tell apart (two against
+// two). The same yardstick as consensus(), with the hypothesis as the centre: a pair is kept when
+// it lies within four times the distance of the second-closest pair (two pairs at least, as a
+// pooled estimate needs) or agrees with the hypothesis within its own noise. Marks the others.
+std::vector<int> agreeWith(const std::vector<Vector7d>& v, const std::vector<Matrix7d>& cov, const Vector7d& centre,
+                           double chi2_gate, std::vector<PairEvidence>* pairs) {
+  std::vector<int> candidates;
+  std::vector<double> dist;
+  for (std::size_t i = 0; i < pairs->size(); ++i) {
+    if (!(*pairs)[i].used) continue;
+    candidates.push_back(static_cast<int>(i));
+    dist.push_back((v[i] - centre).norm());
+  }
+  std::vector<double> sorted = dist;
+  std::sort(sorted.begin(), sorted.end());
+  const double distance_gate = sorted.size() >= 2 ? 4.0 * sorted[1] : 0.0;
+  std::vector<int> use;
+  for (std::size_t k = 0; k < candidates.size(); ++k) {
+    PairEvidence& e = (*pairs)[static_cast<std::size_t>(candidates[k])];
+    e.consistency_chi2 = mahalanobis2(v[static_cast<std::size_t>(candidates[k])] - centre,
+                                      cov[static_cast<std::size_t>(candidates[k])]);
+    if (dist[k] <= distance_gate || e.consistency_chi2 <= chi2_gate) {
+      use.push_back(candidates[k]);
+      continue;
+    }
+    e.used = false;
+    e.note = "dropped: disagrees with the estimate the map clouds support (by " + fmt(dist[k]) +
+             " target units at the matches, > 4x the second-closest pair's " + fmt(distance_gate / 4.0) +
+             "; squared Mahalanobis distance " + fmt(e.consistency_chi2) + ")";
+  }
+  return use;
+}
+
 }  // namespace
 
 SimilarityInitializer::SimilarityInitializer(const MergeOptions& options) : options_(options) { validate(options_); }
@@ -480,24 +514,53 @@ KeyframeEstimate SimilarityInitializer::run(const AgentMap& source, const AgentM
     out.pairs.push_back(pairEvidence(front.pairs[static_cast<std::size_t>(i)], i, source, target, &depths, options_));
     out.pairs.back().used = out.pairs.back().has_estimate;
   }
+  for (const PairEvidence& e : out.pairs) out.used_pairs += e.used ? 1 : 0;
+  if (out.used_pairs == 0) {
+    if (out.pairs.empty()) {
+      out.status = Status::kRelativePoseFailed;
+      out.message = "no keyframe pair verified";
+    } else {
+      const PairEvidence& best = out.pairs.front();
+      out.status = best.scale.status == Status::kOk ? Status::kScaleFailed : best.scale.status;
+      out.message = "no verified keyframe pair gave a scale (" + std::to_string(out.pairs.size()) +
+                    " tried); best pair source " + std::to_string(best.source_keyframe) + " / target " +
+                    std::to_string(best.target_keyframe) + ", " + std::to_string(best.inliers) + " inliers: " + best.note;
+    }
+  } else {
+    out.distant_pairs = keepNeighbourhood(source, target, options_.merge.local_keyframes, &out.pairs);
+    out.used_pairs -= out.distant_pairs;
+    for (PairEvidence& e : out.pairs) e.in_neighbourhood = e.used;
+    pool(nullptr, &out);
+  }
+  out.ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  return out;
+}
+
+KeyframeEstimate SimilarityInitializer::poolAround(const KeyframeEstimate& keyframes, const Sim3& hypothesis) const {
+  const auto t0 = Clock::now();
+  KeyframeEstimate out;
+  out.pairs = keyframes.pairs;
+  out.distant_pairs = keyframes.distant_pairs;
+  for (PairEvidence& e : out.pairs) {
+    e.used = e.in_neighbourhood;
+    out.used_pairs += e.used ? 1 : 0;
+  }
+  if (out.used_pairs == 0) {
+    out.status = Status::kScaleFailed;
+    out.message = "no keyframe pair to pool";
+    return out;
+  }
+  pool(&hypothesis, &out);
+  out.ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  return out;
+}
+
+void SimilarityInitializer::pool(const Sim3* hypothesis, KeyframeEstimate* out_ptr) const {
+  KeyframeEstimate& out = *out_ptr;
   auto finish = [&](Status status, const std::string& message) {
     out.status = status;
     out.message = message;
-    out.ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-    return out;
   };
-  for (const PairEvidence& e : out.pairs) out.used_pairs += e.used ? 1 : 0;
-  if (out.used_pairs == 0) {
-    if (out.pairs.empty()) return finish(Status::kRelativePoseFailed, "no keyframe pair verified");
-    const PairEvidence& best = out.pairs.front();
-    const Status status = best.scale.status == Status::kOk ? Status::kScaleFailed : best.scale.status;
-    return finish(status, "no verified keyframe pair gave a scale (" + std::to_string(out.pairs.size()) +
-                              " tried); best pair source " + std::to_string(best.source_keyframe) + " / target " +
-                              std::to_string(best.target_keyframe) + ", " + std::to_string(best.inliers) +
-                              " inliers: " + best.note);
-  }
-  out.distant_pairs = keepNeighbourhood(source, target, options_.merge.local_keyframes, &out.pairs);
-  out.used_pairs -= out.distant_pairs;
   // The pairs' own estimates about a common reference, in a well-conditioned frame.
   int reference = -1;
   for (std::size_t i = 0; i < out.pairs.size(); ++i) {
@@ -515,7 +578,10 @@ KeyframeEstimate SimilarityInitializer::run(const AgentMap& source, const AgentM
     v[i] = frame.to_u * similarityDifference(out.pairs[i].estimate, ref);
     cov[i] = frame.to_u * out.pairs[i].covariance * frame.to_u.transpose();
   }
-  const std::vector<int> use = consensus(v, cov, options_.merge.pair_consistency_chi2, &out.pairs);
+  const std::vector<int> use =
+      hypothesis ? agreeWith(v, cov, frame.to_u * similarityDifference(*hypothesis, ref),
+                             options_.merge.pair_consistency_chi2, &out.pairs)
+                 : consensus(v, cov, options_.merge.pair_consistency_chi2, &out.pairs);
   out.dropped_pairs = out.used_pairs - static_cast<int>(use.size());
   out.used_pairs = static_cast<int>(use.size());
   Pooled pooled = randomEffects(v, cov, use);
