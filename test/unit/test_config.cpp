@@ -126,12 +126,28 @@ TEST(Config, DuplicateKeysAreRejectedWithBothLines) {
 }
 
 TEST(Config, BinderErrorsGiveTheLine) {
-  EXPECT_NE(errorOf("icp:\n  stop:\n    max_iteration: 5\n").find("unknown key (line 3)"), std::string::npos);
-  EXPECT_NE(errorOf("\ncovariance:\n  normal_neighbors: x\n").find("covariance.normal_neighbors: has the wrong type (line 3)"),
+  const std::string unknown = errorOf("icp:\n  stop:\n    max_iteration: 5\n");
+  EXPECT_NE(unknown.find("icp.stop.max_iteration: unknown key (allowed: max_iterations, "), std::string::npos) << unknown;
+  EXPECT_NE(unknown.find(") (line 3)"), std::string::npos) << unknown;
+  EXPECT_NE(errorOf("\ncovariance:\n  normal_neighbors: x\n").find("covariance.normal_neighbors: must be an integer, got 'x' (line 3)"),
             std::string::npos);
-  EXPECT_NE(errorOf("icp:\n  stop: {max_iterations: 0}\n").find("icp.stop.max_iterations: must be >= 1 (line 2)"),
+  EXPECT_NE(errorOf("icp:\n  stop: {max_iterations: 0}\n").find("icp.stop.max_iterations: must be >= 1, got 0 (line 2)"),
             std::string::npos);
-  EXPECT_NE(errorOf("scale_detection: {ratio_threshold: .inf}\n").find("scale_detection.ratio_threshold: must be > 1"),
+  EXPECT_NE(errorOf("scale_detection: {ratio_threshold: .inf}\n").find("scale_detection.ratio_threshold: must be finite, got '.inf'"),
+            std::string::npos);
+  EXPECT_NE(errorOf("scale_detection: {ratio_threshold: 1}\n").find("scale_detection.ratio_threshold: must be > 1, got 1 (line 1)"),
+            std::string::npos);
+}
+
+// The binder is the bundle reader's: a quoted number is a string, an integer must fit its type.
+TEST(Config, BinderReadsTypesStrictly) {
+  EXPECT_NE(errorOf("icp:\n  stop: {max_iterations: \"5\"}\n").find("icp.stop.max_iterations: must be an integer, got the string '5' (line 2)"),
+            std::string::npos);
+  EXPECT_NE(errorOf("icp:\n  stop: {max_iterations: 99999999999}\n").find("icp.stop.max_iterations: is too large (99999999999) (line 2)"),
+            std::string::npos);
+  EXPECT_NE(errorOf("filters:\n  - random_sampling: {seed: -1}\n").find("filters[0].random_sampling.seed: must be >= 0, got -1 (line 2)"),
+            std::string::npos);
+  EXPECT_NE(errorOf("icp: {stop: {max_iterations: 5}, stop: {}}\n").find("icp.stop: duplicate key (lines 1 and 1)"),
             std::string::npos);
 }
 
@@ -179,7 +195,7 @@ TEST(Config, ErrorsNameTheFileAndKey) {
   EXPECT_NE(errorOf("scale_detection: {ratio_threshold: 1}\n").find("scale_detection.ratio_threshold"),
             std::string::npos);
   EXPECT_NE(errorOf("bogus: 1\n").find("bogus: unknown key"), std::string::npos);
-  EXPECT_NE(errorOf("icp: [1, 2\n").find("invalid YAML"), std::string::npos);
+  EXPECT_NE(errorOf("icp: [1, 2\n").find("YAML syntax error at line 2"), std::string::npos);
   EXPECT_EQ(errorOf("icp: [1, 2\n").rfind("test.yaml", 0), 0u);
   EXPECT_THROW(loadRegistrationConfig("/nonexistent/icp.yaml"), InputError);
 }

@@ -8,6 +8,8 @@
 #include <sstream>
 
 #include "io/yaml_block.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/text_escape.h"
 #include "pcr_pro/sim/simulator.h"
 
 namespace pcr_pro {
@@ -26,7 +28,8 @@ void range(const std::string& key, double v, double lo, double hi) {
 
 // The simulator's schemas stay private to this file: nothing else binds or prints them. The ranges
 // that depend on other values (camera_height, target_height) and those of world, render and
-// semi_dense are checked by their validate().
+// semi_dense are checked by their validate(). The camera block binds through the bundle's camera
+// schema (bundle.h).
 template <>
 const ParamSchema<SimulatorOptions>& paramSchema<SimulatorOptions>() {
   using O = SimulatorOptions;
@@ -35,20 +38,6 @@ const ParamSchema<SimulatorOptions>& paramSchema<SimulatorOptions>() {
       {"agents", &O::agents, ParamRange::closed(1, 26), "", "number of agents"},
       {"min_overlap", &O::min_overlap, ParamRange::closed(0, 1), "-",
        "pairs whose overlap is below this count as not overlapping in the truth"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
-template <>
-const ParamSchema<PinholeCamera>& paramSchema<PinholeCamera>() {
-  using O = PinholeCamera;
-  static const ParamSchema<O> schema{"camera", {
-      {"fx", &O::fx, ParamRange::any(), "px", "focal length along x"},
-      {"fy", &O::fy, ParamRange::any(), "px", "focal length along y"},
-      {"cx", &O::cx, ParamRange::any(), "px", "principal point x"},
-      {"cy", &O::cy, ParamRange::any(), "px", "principal point y"},
-      {"width", &O::width, ParamRange::any(), "px", "image width"},
-      {"height", &O::height, ParamRange::any(), "px", "image height"},
   }, ParamMessage::kNode};
   return schema;
 }
@@ -197,7 +186,7 @@ void validateAgent(const AgentOptions& a, std::size_t i) {
   if (!a.name.empty()) {
     for (char c : a.name) {
       if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_')) {
-        throw InputError(f + "name: only letters, digits and '_' (it names a directory and ROS topics), got '" + a.name + "'");
+        throw InputError(f + "name: only letters, digits and '_' (it names a directory and ROS topics), got '" + printable(a.name) + "'");
       }
     }
   }
@@ -209,16 +198,14 @@ void validateAgent(const AgentOptions& a, std::size_t i) {
 }
 
 void optionalDouble(Block* b, const std::string& key, std::optional<double>* v) {
-  if (!b->child(key)) return;  // child() marks the key as known
-  double x = 0.0;
-  b->get(key, &x);
-  *v = x;
+  const YAML::Node value = b->child(key);  // marks the key as known
+  if (value) *v = b->reader().number(value, b->keyPath(key));
 }
 
 // Binds the block `key` of parent through O's schema; nested(block) binds its sub-blocks.
 template <typename O, typename Nested>
 void bindBlock(Block* parent, const std::string& key, O* o, Nested&& nested) {
-  Block b(parent->child(key), parent->keyPath(key), parent->origin());
+  Block b(parent->reader(), parent->child(key), parent->keyPath(key));
   config_detail::bindParams(paramSchema<O>(), &b, o);
   nested(&b);
   b.finish();
@@ -229,11 +216,12 @@ void bindBlock(Block* parent, const std::string& key, O* o) {
   bindBlock(parent, key, o, [](Block*) {});
 }
 
-void loadAgents(const YAML::Node& node, const std::string& origin, std::vector<AgentOptions>* agents) {
+void loadAgents(Block* top, std::vector<AgentOptions>* agents) {
+  const YAML::Node node = top->child("per_agent");
   if (!node || node.IsNull()) return;
-  if (!node.IsSequence()) throw InputError(origin + ": per_agent: must be a list");
+  top->reader().list(node, "per_agent", "agents");
   for (std::size_t i = 0; i < node.size(); ++i) {
-    Block b(node[i], "per_agent[" + std::to_string(i) + "]", origin);
+    Block b(top->reader(), node[i], yaml_detail::elementKey("per_agent", i));
     AgentOptions a;
     b.get("name", &a.name);
     optionalDouble(&b, "scale", &a.scale);
@@ -300,7 +288,7 @@ SimulatorOptions parseSimulatorConfig(const std::string& text, const std::string
     bindBlock(top, "layout", &o.layout);
     bindBlock(top, "drift", &o.drift);
     bindBlock(top, "map", &o.map, [&o](Block* map) { bindBlock(map, "semi_dense", &o.map.semi_dense); });
-    loadAgents(top->child("per_agent"), top->origin(), &o.per_agent);
+    loadAgents(top, &o.per_agent);
   });
   config_detail::validateIn(o, origin);
   return o;
