@@ -26,10 +26,11 @@ void range(const std::string& key, double v, double lo, double hi) {
 
 }  // namespace
 
-// The simulator's schemas stay private to this file: nothing else binds or prints them. The ranges
-// that depend on other values (camera_height, target_height) and those of world, render and
-// semi_dense are checked by their validate(). The camera block binds through the bundle's camera
-// schema (bundle.h).
+// The simulator's own schemas stay private to this file: nothing else binds or prints them. The
+// ranges that depend on other values (camera_height, target_height) are checked by validate().
+// The camera block binds through the bundle's camera schema (bundle.h); world, world.texture,
+// render and map.semi_dense through the schemas beside their validate() (world.h, render.h,
+// semi_dense.h).
 template <>
 const ParamSchema<SimulatorOptions>& paramSchema<SimulatorOptions>() {
   using O = SimulatorOptions;
@@ -38,49 +39,6 @@ const ParamSchema<SimulatorOptions>& paramSchema<SimulatorOptions>() {
       {"agents", &O::agents, ParamRange::closed(1, 26), "", "number of agents"},
       {"min_overlap", &O::min_overlap, ParamRange::closed(0, 1), "-",
        "pairs whose overlap is below this count as not overlapping in the truth"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
-template <>
-const ParamSchema<WorldOptions>& paramSchema<WorldOptions>() {
-  using O = WorldOptions;
-  static const ParamSchema<O> schema{"world", {
-      {"room_length", &O::room_length, ParamRange::any(), "m", "interior extent along x"},
-      {"room_width", &O::room_width, ParamRange::any(), "m", "interior extent along y"},
-      {"room_height", &O::room_height, ParamRange::any(), "m", "interior height"},
-      {"boxes", &O::boxes, ParamRange::any(), "", "number of furniture-like boxes"},
-      {"max_box_depth", &O::max_box_depth, ParamRange::any(), "m", "depth of a box against a wall"},
-      {"max_wall_box_height", &O::max_wall_box_height, ParamRange::any(), "m", "height of a box against a wall"},
-      {"max_free_box_height", &O::max_free_box_height, ParamRange::any(), "m", "height of a free-standing box"},
-      {"free_box_wall_distance", &O::free_box_wall_distance, ParamRange::any(), "m",
-       "smallest distance of a free-standing box from the walls"},
-      {"ambient", &O::ambient, ParamRange::any(), "-", "ambient share of the lighting"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
-template <>
-const ParamSchema<TextureOptions>& paramSchema<TextureOptions>() {
-  using O = TextureOptions;
-  static const ParamSchema<O> schema{"world.texture", {
-      {"texel", &O::texel, ParamRange::any(), "m", "texel size"},
-      {"min_shape_size", &O::min_shape_size, ParamRange::any(), "m", "smallest shape drawn"},
-      {"max_shape_size", &O::max_shape_size, ParamRange::any(), "m", "largest shape drawn"},
-      {"coverage", &O::coverage, ParamRange::any(), "-", "fraction of a face the largest shapes cover"},
-      {"detail_decay", &O::detail_decay, ParamRange::any(), "-", "coverage ratio of one size octave to the next"},
-      {"blur", &O::blur, ParamRange::any(), "texels", "Gaussian blur of the drawn texture"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
-template <>
-const ParamSchema<RenderOptions>& paramSchema<RenderOptions>() {
-  using O = RenderOptions;
-  static const ParamSchema<O> schema{"render", {
-      {"supersampling", &O::supersampling, ParamRange::any(), "", "samples per pixel side"},
-      {"image_noise", &O::image_noise, ParamRange::any(), "grey levels", "Gaussian noise of every pixel"},
-      {"near", &O::near, ParamRange::any(), "m", "surfaces closer to the camera are not drawn"},
   }, ParamMessage::kNode};
   return schema;
 }
@@ -148,20 +106,6 @@ const ParamSchema<MapOutputOptions>& paramSchema<MapOutputOptions>() {
                     },
                     "dense, semi_dense or none"},
        ParamRange::any(), "", "depth images of the bundles and keyframes"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
-template <>
-const ParamSchema<SemiDenseOptions>& paramSchema<SemiDenseOptions>() {
-  using O = SemiDenseOptions;
-  static const ParamSchema<O> schema{"map.semi_dense", {
-      {"min_gradient", &O::min_gradient, ParamRange::any(), "grey levels / px", "a pixel with less gradient is left out"},
-      {"idepth_noise", &O::idepth_noise, ParamRange::any(), "-", "inverse-depth noise at reference_gradient"},
-      {"reference_gradient", &O::reference_gradient, ParamRange::any(), "grey levels / px", "gradient of idepth_noise"},
-      {"outlier_fraction", &O::outlier_fraction, ParamRange::any(), "-", "fraction of wrong inverse depths"},
-      {"subsample", &O::subsample, ParamRange::any(), "", "keep one gradient pixel in this many"},
-      {"noise_correlation", &O::noise_correlation, ParamRange::any(), "px", "spatial correlation of the noise"},
   }, ParamMessage::kNode};
   return schema;
 }
