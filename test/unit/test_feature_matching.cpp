@@ -14,6 +14,7 @@
 #include <string>
 
 #include "common/data_dir.h"
+#include "common/option_checks.h"
 #include "pcr_pro/frontend/descriptor_index.h"
 #include "pcr_pro/frontend/feature_matching.h"
 
@@ -305,54 +306,26 @@ TEST(FeatureMatching, DefaultsAndValidation) {
   EXPECT_EQ(d.min_matches, 15);
   EXPECT_NO_THROW(validate(d));
 
-  auto expectKey = [](const FeatureMatchingOptions& o, const std::string& key) {
-    try {
-      validate(o);
-      ADD_FAILURE() << "no error for " << key;
-    } catch (const InputError& e) {
-      EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
-    }
-    // The stage functions validate too.
-    EXPECT_THROW(extractFeatures(cv::Mat::zeros(8, 8, CV_8UC1), o), InputError);
-    EXPECT_THROW(matchFeatures(KeyframeFeatures(), KeyframeFeatures(), o), InputError);
-  };
   const double nan = std::numeric_limits<double>::quiet_NaN();
-  FeatureMatchingOptions o;
-  o.image_scale = 0.0;
-  expectKey(o, "matching.image_scale");
-  o = d;
-  o.image_scale = 1.5;
-  expectKey(o, "matching.image_scale");
-  o = d;
-  o.nfeatures = -1;
-  expectKey(o, "matching.nfeatures");
-  o = d;
-  o.n_octave_layers = 0;
-  expectKey(o, "matching.n_octave_layers");
-  o = d;
-  o.contrast_threshold = 0.0;
-  expectKey(o, "matching.contrast_threshold");
-  o = d;
-  o.edge_threshold = nan;
-  expectKey(o, "matching.edge_threshold");
-  o = d;
-  o.sigma = -1.0;
-  expectKey(o, "matching.sigma");
-  o = d;
-  o.flann_trees = 0;
-  expectKey(o, "matching.flann_trees");
-  o = d;
-  o.flann_checks = 0;
-  expectKey(o, "matching.flann_checks");
-  o = d;
-  o.ratio_test = 0.0;
-  expectKey(o, "matching.ratio_test must be in (0, 1]");
-  o = d;
-  o.ratio_test = 1.01;
-  expectKey(o, "matching.ratio_test");
-  o = d;
-  o.min_matches = -1;
-  expectKey(o, "matching.min_matches");
+  test::expectEachRefused<FeatureMatchingOptions>(
+      {
+          {[](FeatureMatchingOptions* o) { o->image_scale = 0.0; }, "matching.image_scale"},
+          {[](FeatureMatchingOptions* o) { o->image_scale = 1.5; }, "matching.image_scale"},
+          {[](FeatureMatchingOptions* o) { o->nfeatures = -1; }, "matching.nfeatures"},
+          {[](FeatureMatchingOptions* o) { o->n_octave_layers = 0; }, "matching.n_octave_layers"},
+          {[](FeatureMatchingOptions* o) { o->contrast_threshold = 0.0; }, "matching.contrast_threshold"},
+          {[nan](FeatureMatchingOptions* o) { o->edge_threshold = nan; }, "matching.edge_threshold"},
+          {[](FeatureMatchingOptions* o) { o->sigma = -1.0; }, "matching.sigma"},
+          {[](FeatureMatchingOptions* o) { o->flann_trees = 0; }, "matching.flann_trees"},
+          {[](FeatureMatchingOptions* o) { o->flann_checks = 0; }, "matching.flann_checks"},
+          {[](FeatureMatchingOptions* o) { o->ratio_test = 0.0; }, "matching.ratio_test must be in (0, 1]"},
+          {[](FeatureMatchingOptions* o) { o->ratio_test = 1.01; }, "matching.ratio_test"},
+          {[](FeatureMatchingOptions* o) { o->min_matches = -1; }, "matching.min_matches"},
+      },
+      [](const FeatureMatchingOptions& o) {  // the stage functions validate too
+        EXPECT_THROW(extractFeatures(cv::Mat::zeros(8, 8, CV_8UC1), o), InputError);
+        EXPECT_THROW(matchFeatures(KeyframeFeatures(), KeyframeFeatures(), o), InputError);
+      });
 }
 
 // --- the seeded descriptor index (issue 14: repeatable merges) --------------------------------

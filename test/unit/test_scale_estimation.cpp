@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "common/option_checks.h"
 #include "pcr_pro/frontend/scale_estimation.h"
 #include "pcr_pro/geometry/sim3.h"
 
@@ -355,39 +356,17 @@ TEST(ScaleEstimationTest, InvalidInputThrows) {
 }
 
 TEST(ScaleEstimationTest, OptionValidationNamesTheKey) {
-  auto messageOf = [](const ScaleEstimationOptions& o) -> std::string {
-    try {
-      validate(o);
-    } catch (const InputError& e) {
-      return e.what();
-    }
-    return "";
-  };
-  EXPECT_EQ(messageOf(ScaleEstimationOptions()), "");
-  ScaleEstimationOptions o;
-  o.relative_depth_noise = 0.0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.relative_depth_noise"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.relative_lateral_noise = -1.0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.relative_lateral_noise"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.gating_chi2 = std::nan("");
-  EXPECT_NE(messageOf(o).find("scale_estimation.gating_chi2"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.min_inliers = 1;
-  EXPECT_NE(messageOf(o).find("scale_estimation.min_inliers"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.min_inlier_ratio = 1.5;
-  EXPECT_NE(messageOf(o).find("scale_estimation.min_inlier_ratio"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.max_relative_stddev = 0.0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.max_relative_stddev"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.passes = 0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.passes"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.prior_relative_stddev = 0.0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.prior_relative_stddev"), std::string::npos);
+  using O = ScaleEstimationOptions;
+  test::expectEachRefused<O>({
+      {[](O* o) { o->relative_depth_noise = 0.0; }, "scale_estimation.relative_depth_noise"},
+      {[](O* o) { o->relative_lateral_noise = -1.0; }, "scale_estimation.relative_lateral_noise"},
+      {[](O* o) { o->gating_chi2 = std::nan(""); }, "scale_estimation.gating_chi2"},
+      {[](O* o) { o->min_inliers = 1; }, "scale_estimation.min_inliers"},
+      {[](O* o) { o->min_inlier_ratio = 1.5; }, "scale_estimation.min_inlier_ratio"},
+      {[](O* o) { o->max_relative_stddev = 0.0; }, "scale_estimation.max_relative_stddev"},
+      {[](O* o) { o->passes = 0; }, "scale_estimation.passes"},
+      {[](O* o) { o->prior_relative_stddev = 0.0; }, "scale_estimation.prior_relative_stddev"},
+  });
 }
 
 TEST(ScaleEstimationTest, StrictLimitsTurnIntoScaleFailed) {
