@@ -40,6 +40,19 @@ cv::Mat rotationScaleHomography(const cv::Size& size, double angle_deg, double s
   return h;
 }
 
+/// An image and its copy warped by rotationScaleHomography(20 deg, 0.8), the homography's test pair.
+struct WarpedPair {
+  cv::Mat image, warped, h;
+};
+
+WarpedPair warpedPair(const cv::Mat& image) {
+  WarpedPair p;
+  p.image = image;
+  p.h = rotationScaleHomography(image.size(), 20.0, 0.8);
+  cv::warpPerspective(image, p.warped, p.h, image.size());
+  return p;
+}
+
 Eigen::Vector2d applyHomography(const cv::Mat& h, const Eigen::Vector2d& p) {
   const double x = h.at<double>(0, 0) * p.x() + h.at<double>(0, 1) * p.y() + h.at<double>(0, 2);
   const double y = h.at<double>(1, 0) * p.x() + h.at<double>(1, 1) * p.y() + h.at<double>(1, 2);
@@ -75,14 +88,13 @@ TEST(FeatureMatching, WarpedImageAgreesWithHomography) {
   PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
-  const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
-  cv::Mat warped;
-  cv::warpPerspective(img, warped, h, img.size());
+  const WarpedPair pair = warpedPair(img);
+  const cv::Mat& h = pair.h;
 
   FeatureMatchingOptions o;
   o.image_scale = 1.0;  // full resolution (half size: HalfScaleKeypointsAreInFullResolutionPixels)
   const KeyframeFeatures fa = extractFeatures(img, o);
-  const KeyframeFeatures fb = extractFeatures(warped, o);
+  const KeyframeFeatures fb = extractFeatures(pair.warped, o);
   EXPECT_GT(fa.keypoints.size(), 500u);
   EXPECT_LE(static_cast<int>(fa.keypoints.size()), o.nfeatures + 50);  // SIFT may keep ties
   EXPECT_EQ(fa.descriptors.rows, static_cast<int>(fa.keypoints.size()));
@@ -111,12 +123,10 @@ TEST(FeatureMatching, RatioTestAndSymmetricCheckFilter) {
   PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
-  const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
-  cv::Mat warped;
-  cv::warpPerspective(img, warped, h, img.size());
+  const WarpedPair pair = warpedPair(img);
   FeatureMatchingOptions o;
   const KeyframeFeatures fa = extractFeatures(img, o);
-  const KeyframeFeatures fb = extractFeatures(warped, o);
+  const KeyframeFeatures fb = extractFeatures(pair.warped, o);
 
   o.ratio_test = 0.6;
   const std::size_t strict = matchFeatures(fa, fb, o).size();
@@ -279,10 +289,9 @@ TEST(FeatureMatching, HalfScaleKeypointsAreInFullResolutionPixels) {
   EXPECT_GT(max_y, 0.75f * static_cast<float>(img.rows));
   EXPECT_GT(near, static_cast<int>(0.7 * static_cast<double>(fh.keypoints.size())));
 
-  const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
-  cv::Mat warped;
-  cv::warpPerspective(img, warped, h, img.size());
-  const FeatureMatches m = matchFeatures(fh, extractFeatures(warped, half), half);
+  const WarpedPair pair = warpedPair(img);
+  const cv::Mat& h = pair.h;
+  const FeatureMatches m = matchFeatures(fh, extractFeatures(pair.warped, half), half);
   ASSERT_GT(m.size(), 50u);
   int agree = 0;
   for (std::size_t i = 0; i < m.size(); ++i) {
