@@ -10,6 +10,7 @@
 
 #include <pcl_conversions/pcl_conversions.h>
 
+#include "common/option_checks.h"
 #include "common/sim_worlds.h"
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/merge/agent_store.h"
@@ -197,16 +198,11 @@ TEST(LsdFilters, ViewerSemantics) {
 }
 
 TEST(LsdFilters, OptionsAreValidated) {
-  LsdFilterOptions o;
-  EXPECT_NO_THROW(validate(o));
-  o.min_near_support = 10;
-  EXPECT_THROW(validate(o), InputError);
-  o = LsdFilterOptions();
-  o.sparsify_factor = 0;
-  EXPECT_THROW(validate(o), InputError);
-  o = LsdFilterOptions();
-  o.scaled_depth_var_th = 0.0;
-  EXPECT_THROW(validate(o), InputError);
+  test::expectEachRefused<LsdFilterOptions>({
+      {[](LsdFilterOptions* o) { o->min_near_support = 10; }, "lsd.min_near_support"},
+      {[](LsdFilterOptions* o) { o->sparsify_factor = 0; }, "lsd.sparsify_factor"},
+      {[](LsdFilterOptions* o) { o->scaled_depth_var_th = 0.0; }, "lsd.scaled_depth_var_th"},
+  });
 }
 
 // --- pcr_pro messages -------------------------------------------------------------------------

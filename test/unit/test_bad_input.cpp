@@ -800,9 +800,9 @@ INSTANTIATE_TEST_SUITE_P(
                      {"icp.stop.max_iterations", "duplicate key (lines 3 and 4)"}, ""},
         ConfigDefect{"LimitZero", "limits: {max_cloud_points: 0}\n", {"limits.max_cloud_points"}, ""},
         ConfigDefect{"LimitTooLarge", "limits: {max_cloud_points: 300000000}\n", {"limits.max_cloud_points"}, ""},
-        ConfigDefect{"LimitWrongType", "limits: {max_keyframes: many}\n", {"limits.max_keyframes", "wrong type"}, ""},
+        ConfigDefect{"LimitWrongType", "limits: {max_keyframes: many}\n", {"limits.max_keyframes", "must be an integer, got 'many'"}, ""},
         ConfigDefect{
-            "LimitFraction", "limits: {max_image_pixels: 1.5}\n", {"limits.max_image_pixels", "wrong type"}, ""},
+            "LimitFraction", "limits: {max_image_pixels: 1.5}\n", {"limits.max_image_pixels", "must be an integer, got '1.5'"}, ""},
         ConfigDefect{"LimitsNotAMap", "limits: 5\n", {"limits", "map"}, ""},
         ConfigDefect{"StageWrongType", "icp: {stop: {max_iterations: [1]}}\n", {"icp.stop.max_iterations"}, ""},
         ConfigDefect{"FilterNotAMap", "filters: [voxel_grid]\n", {"filters[0]"}, ""}),

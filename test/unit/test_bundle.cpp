@@ -476,7 +476,7 @@ std::vector<Defect> defects() {
        "  fx: 100.0\n  fx: 101.0\n",
        nullptr,
        y,
-       {"camera.fx: duplicate key", "line 5"}},
+       {"camera.fx: duplicate key (lines 4 and 5)"}},
       // image and depth files
       {"ImageMissing", "", "", remove(image), image, {"file not found", "(keyframes[0].image)"}},
       {"ImageCorrupt",

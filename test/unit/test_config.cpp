@@ -22,6 +22,12 @@ std::string errorOf(const std::string& yaml) {
   return "";
 }
 
+// Expects the configuration to be refused with a message that contains part.
+void expectError(const std::string& yaml, const std::string& part) {
+  const std::string message = errorOf(yaml);
+  EXPECT_NE(message.find(part), std::string::npos) << "'" << message << "' lacks '" << part << "'";
+}
+
 std::string readText(const std::string& path) {
   std::ifstream in(path);
   std::stringstream s;
@@ -120,19 +126,26 @@ TEST(Config, DuplicateKeysAreRejectedWithBothLines) {
   // yaml-cpp keeps the first of two equal keys silently: the binder refuses them.
   const std::string e = errorOf("icp:\n  stop:\n    max_iterations: 5\n    max_iterations: 90\n");
   EXPECT_NE(e.find("test.yaml: icp.stop.max_iterations: duplicate key (lines 3 and 4)"), std::string::npos) << e;
-  EXPECT_NE(errorOf("icp: {}\nicp: {}\n").find("icp: duplicate key (lines 1 and 2)"), std::string::npos);
-  EXPECT_NE(errorOf("filters:\n  - crop: {axis: x, axis: y}\n").find("filters[0].crop.axis: duplicate key"),
-            std::string::npos);
+  expectError("icp: {}\nicp: {}\n", "icp: duplicate key (lines 1 and 2)");
+  expectError("filters:\n  - crop: {axis: x, axis: y}\n", "filters[0].crop.axis: duplicate key");
 }
 
 TEST(Config, BinderErrorsGiveTheLine) {
-  EXPECT_NE(errorOf("icp:\n  stop:\n    max_iteration: 5\n").find("unknown key (line 3)"), std::string::npos);
-  EXPECT_NE(errorOf("\ncovariance:\n  normal_neighbors: x\n").find("covariance.normal_neighbors: has the wrong type (line 3)"),
-            std::string::npos);
-  EXPECT_NE(errorOf("icp:\n  stop: {max_iterations: 0}\n").find("icp.stop.max_iterations: must be >= 1 (line 2)"),
-            std::string::npos);
-  EXPECT_NE(errorOf("scale_detection: {ratio_threshold: .inf}\n").find("scale_detection.ratio_threshold: must be > 1"),
-            std::string::npos);
+  const std::string unknown = errorOf("icp:\n  stop:\n    max_iteration: 5\n");
+  EXPECT_NE(unknown.find("icp.stop.max_iteration: unknown key (allowed: max_iterations, "), std::string::npos) << unknown;
+  EXPECT_NE(unknown.find(") (line 3)"), std::string::npos) << unknown;
+  expectError("\ncovariance:\n  normal_neighbors: x\n", "covariance.normal_neighbors: must be an integer, got 'x' (line 3)");
+  expectError("icp:\n  stop: {max_iterations: 0}\n", "icp.stop.max_iterations: must be >= 1, got 0 (line 2)");
+  expectError("scale_detection: {ratio_threshold: .inf}\n", "scale_detection.ratio_threshold: must be finite, got '.inf'");
+  expectError("scale_detection: {ratio_threshold: 1}\n", "scale_detection.ratio_threshold: must be > 1, got 1 (line 1)");
+}
+
+// The binder is the bundle reader's: a quoted number is a string, an integer must fit its type.
+TEST(Config, BinderReadsTypesStrictly) {
+  expectError("icp:\n  stop: {max_iterations: \"5\"}\n", "icp.stop.max_iterations: must be an integer, got the string '5' (line 2)");
+  expectError("icp:\n  stop: {max_iterations: 99999999999}\n", "icp.stop.max_iterations: is too large (99999999999) (line 2)");
+  expectError("filters:\n  - random_sampling: {seed: -1}\n", "filters[0].random_sampling.seed: must be >= 0, got -1 (line 2)");
+  expectError("icp: {stop: {max_iterations: 5}, stop: {}}\n", "icp.stop: duplicate key (lines 1 and 1)");
 }
 
 TEST(Config, ScaleDetectionHasItsOwnValidate) {
@@ -165,21 +178,16 @@ TEST(Config, FilterChainIsReadInOrder) {
 }
 
 TEST(Config, ErrorsNameTheFileAndKey) {
-  EXPECT_NE(errorOf("icp:\n  stop:\n    max_iterations: 0\n").find("max_iterations"), std::string::npos);
-  EXPECT_NE(errorOf("icp:\n  stop:\n    max_iteration: 5\n").find("icp.stop.max_iteration: unknown key"),
-            std::string::npos);
-  EXPECT_NE(errorOf("icp:\n  outlier_rejection:\n    trim_ratio: abc\n").find("icp.outlier_rejection.trim_ratio"),
-            std::string::npos);
-  EXPECT_NE(errorOf("icp:\n  error_minimizer:\n    type: point_to_line\n").find("icp.error_minimizer.type"),
-            std::string::npos);
-  EXPECT_NE(errorOf("filters:\n  - blur: {}\n").find("filters[0]"), std::string::npos);
-  EXPECT_NE(errorOf("filters:\n  - crop: {axis: w}\n").find("filters[0].crop.axis"), std::string::npos);
-  EXPECT_NE(errorOf("covariance:\n  degeneracy_condition_threshold: 0.5\n").find("degeneracy_condition_threshold"),
-            std::string::npos);
-  EXPECT_NE(errorOf("scale_detection: {ratio_threshold: 1}\n").find("scale_detection.ratio_threshold"),
-            std::string::npos);
-  EXPECT_NE(errorOf("bogus: 1\n").find("bogus: unknown key"), std::string::npos);
-  EXPECT_NE(errorOf("icp: [1, 2\n").find("invalid YAML"), std::string::npos);
+  expectError("icp:\n  stop:\n    max_iterations: 0\n", "max_iterations");
+  expectError("icp:\n  stop:\n    max_iteration: 5\n", "icp.stop.max_iteration: unknown key");
+  expectError("icp:\n  outlier_rejection:\n    trim_ratio: abc\n", "icp.outlier_rejection.trim_ratio");
+  expectError("icp:\n  error_minimizer:\n    type: point_to_line\n", "icp.error_minimizer.type");
+  expectError("filters:\n  - blur: {}\n", "filters[0]");
+  expectError("filters:\n  - crop: {axis: w}\n", "filters[0].crop.axis");
+  expectError("covariance:\n  degeneracy_condition_threshold: 0.5\n", "degeneracy_condition_threshold");
+  expectError("scale_detection: {ratio_threshold: 1}\n", "scale_detection.ratio_threshold");
+  expectError("bogus: 1\n", "bogus: unknown key");
+  expectError("icp: [1, 2\n", "YAML syntax error at line 2");
   EXPECT_EQ(errorOf("icp: [1, 2\n").rfind("test.yaml", 0), 0u);
   EXPECT_THROW(loadRegistrationConfig("/nonexistent/icp.yaml"), InputError);
 }

@@ -14,6 +14,7 @@
 #include <string>
 
 #include "common/data_dir.h"
+#include "common/option_checks.h"
 #include "pcr_pro/frontend/descriptor_index.h"
 #include "pcr_pro/frontend/feature_matching.h"
 
@@ -37,6 +38,19 @@ cv::Mat rotationScaleHomography(const cv::Size& size, double angle_deg, double s
   cv::Mat h = cv::Mat::eye(3, 3, CV_64F);
   affine.copyTo(h.rowRange(0, 2));
   return h;
+}
+
+/// An image and its copy warped by rotationScaleHomography(20 deg, 0.8), the homography's test pair.
+struct WarpedPair {
+  cv::Mat image, warped, h;
+};
+
+WarpedPair warpedPair(const cv::Mat& image) {
+  WarpedPair p;
+  p.image = image;
+  p.h = rotationScaleHomography(image.size(), 20.0, 0.8);
+  cv::warpPerspective(image, p.warped, p.h, image.size());
+  return p;
 }
 
 Eigen::Vector2d applyHomography(const cv::Mat& h, const Eigen::Vector2d& p) {
@@ -74,14 +88,13 @@ TEST(FeatureMatching, WarpedImageAgreesWithHomography) {
   PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
-  const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
-  cv::Mat warped;
-  cv::warpPerspective(img, warped, h, img.size());
+  const WarpedPair pair = warpedPair(img);
+  const cv::Mat& h = pair.h;
 
   FeatureMatchingOptions o;
   o.image_scale = 1.0;  // full resolution (half size: HalfScaleKeypointsAreInFullResolutionPixels)
   const KeyframeFeatures fa = extractFeatures(img, o);
-  const KeyframeFeatures fb = extractFeatures(warped, o);
+  const KeyframeFeatures fb = extractFeatures(pair.warped, o);
   EXPECT_GT(fa.keypoints.size(), 500u);
   EXPECT_LE(static_cast<int>(fa.keypoints.size()), o.nfeatures + 50);  // SIFT may keep ties
   EXPECT_EQ(fa.descriptors.rows, static_cast<int>(fa.keypoints.size()));
@@ -110,12 +123,10 @@ TEST(FeatureMatching, RatioTestAndSymmetricCheckFilter) {
   PCR_PRO_REQUIRE_DATA(kColorDir);
   const cv::Mat img = loadGray("1.png");
   ASSERT_FALSE(img.empty());
-  const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
-  cv::Mat warped;
-  cv::warpPerspective(img, warped, h, img.size());
+  const WarpedPair pair = warpedPair(img);
   FeatureMatchingOptions o;
   const KeyframeFeatures fa = extractFeatures(img, o);
-  const KeyframeFeatures fb = extractFeatures(warped, o);
+  const KeyframeFeatures fb = extractFeatures(pair.warped, o);
 
   o.ratio_test = 0.6;
   const std::size_t strict = matchFeatures(fa, fb, o).size();
@@ -278,10 +289,9 @@ TEST(FeatureMatching, HalfScaleKeypointsAreInFullResolutionPixels) {
   EXPECT_GT(max_y, 0.75f * static_cast<float>(img.rows));
   EXPECT_GT(near, static_cast<int>(0.7 * static_cast<double>(fh.keypoints.size())));
 
-  const cv::Mat h = rotationScaleHomography(img.size(), 20.0, 0.8);
-  cv::Mat warped;
-  cv::warpPerspective(img, warped, h, img.size());
-  const FeatureMatches m = matchFeatures(fh, extractFeatures(warped, half), half);
+  const WarpedPair pair = warpedPair(img);
+  const cv::Mat& h = pair.h;
+  const FeatureMatches m = matchFeatures(fh, extractFeatures(pair.warped, half), half);
   ASSERT_GT(m.size(), 50u);
   int agree = 0;
   for (std::size_t i = 0; i < m.size(); ++i) {
@@ -305,54 +315,26 @@ TEST(FeatureMatching, DefaultsAndValidation) {
   EXPECT_EQ(d.min_matches, 15);
   EXPECT_NO_THROW(validate(d));
 
-  auto expectKey = [](const FeatureMatchingOptions& o, const std::string& key) {
-    try {
-      validate(o);
-      ADD_FAILURE() << "no error for " << key;
-    } catch (const InputError& e) {
-      EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
-    }
-    // The stage functions validate too.
-    EXPECT_THROW(extractFeatures(cv::Mat::zeros(8, 8, CV_8UC1), o), InputError);
-    EXPECT_THROW(matchFeatures(KeyframeFeatures(), KeyframeFeatures(), o), InputError);
-  };
   const double nan = std::numeric_limits<double>::quiet_NaN();
-  FeatureMatchingOptions o;
-  o.image_scale = 0.0;
-  expectKey(o, "matching.image_scale");
-  o = d;
-  o.image_scale = 1.5;
-  expectKey(o, "matching.image_scale");
-  o = d;
-  o.nfeatures = -1;
-  expectKey(o, "matching.nfeatures");
-  o = d;
-  o.n_octave_layers = 0;
-  expectKey(o, "matching.n_octave_layers");
-  o = d;
-  o.contrast_threshold = 0.0;
-  expectKey(o, "matching.contrast_threshold");
-  o = d;
-  o.edge_threshold = nan;
-  expectKey(o, "matching.edge_threshold");
-  o = d;
-  o.sigma = -1.0;
-  expectKey(o, "matching.sigma");
-  o = d;
-  o.flann_trees = 0;
-  expectKey(o, "matching.flann_trees");
-  o = d;
-  o.flann_checks = 0;
-  expectKey(o, "matching.flann_checks");
-  o = d;
-  o.ratio_test = 0.0;
-  expectKey(o, "matching.ratio_test must be in (0, 1]");
-  o = d;
-  o.ratio_test = 1.01;
-  expectKey(o, "matching.ratio_test");
-  o = d;
-  o.min_matches = -1;
-  expectKey(o, "matching.min_matches");
+  test::expectEachRefused<FeatureMatchingOptions>(
+      {
+          {[](FeatureMatchingOptions* o) { o->image_scale = 0.0; }, "matching.image_scale"},
+          {[](FeatureMatchingOptions* o) { o->image_scale = 1.5; }, "matching.image_scale"},
+          {[](FeatureMatchingOptions* o) { o->nfeatures = -1; }, "matching.nfeatures"},
+          {[](FeatureMatchingOptions* o) { o->n_octave_layers = 0; }, "matching.n_octave_layers"},
+          {[](FeatureMatchingOptions* o) { o->contrast_threshold = 0.0; }, "matching.contrast_threshold"},
+          {[nan](FeatureMatchingOptions* o) { o->edge_threshold = nan; }, "matching.edge_threshold"},
+          {[](FeatureMatchingOptions* o) { o->sigma = -1.0; }, "matching.sigma"},
+          {[](FeatureMatchingOptions* o) { o->flann_trees = 0; }, "matching.flann_trees"},
+          {[](FeatureMatchingOptions* o) { o->flann_checks = 0; }, "matching.flann_checks"},
+          {[](FeatureMatchingOptions* o) { o->ratio_test = 0.0; }, "matching.ratio_test must be in (0, 1]"},
+          {[](FeatureMatchingOptions* o) { o->ratio_test = 1.01; }, "matching.ratio_test"},
+          {[](FeatureMatchingOptions* o) { o->min_matches = -1; }, "matching.min_matches"},
+      },
+      [](const FeatureMatchingOptions& o) {  // the stage functions validate too
+        EXPECT_THROW(extractFeatures(cv::Mat::zeros(8, 8, CV_8UC1), o), InputError);
+        EXPECT_THROW(matchFeatures(KeyframeFeatures(), KeyframeFeatures(), o), InputError);
+      });
 }
 
 // --- the seeded descriptor index (issue 14: repeatable merges) --------------------------------

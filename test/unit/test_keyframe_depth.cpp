@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "common/option_checks.h"
 #include "pcr_pro/frontend/keyframe_depth.h"
 
 namespace pcr_pro {
@@ -343,34 +344,18 @@ TEST(KeyframeDepthTest, InvalidInputThrows) {
 }
 
 TEST(KeyframeDepthTest, OptionValidationNamesTheKey) {
-  auto messageOf = [](const KeyframeDepthOptions& o) -> std::string {
-    try {
-      validate(o);
-    } catch (const InputError& e) {
-      return e.what();
-    }
-    return "";
-  };
-  EXPECT_EQ(messageOf(KeyframeDepthOptions()), "");
-  KeyframeDepthOptions o;
-  o.neighborhood_radius_px = -1;
-  EXPECT_NE(messageOf(o).find("keyframe_depth.neighborhood_radius_px"), std::string::npos);
-  o = KeyframeDepthOptions();
-  o.min_depth = 0.0;
-  EXPECT_NE(messageOf(o).find("keyframe_depth.min_depth"), std::string::npos);
-  o = KeyframeDepthOptions();
-  o.max_depth = 1e-7;  // below min_depth
-  EXPECT_NE(messageOf(o).find("keyframe_depth.max_depth"), std::string::npos);
-  o = KeyframeDepthOptions();
-  o.max_cloud_points_projected = -5;
-  EXPECT_NE(messageOf(o).find("keyframe_depth.max_cloud_points_projected"), std::string::npos);
-  o = KeyframeDepthOptions();
-  o.depth_consistency = std::nan("");
-  EXPECT_NE(messageOf(o).find("keyframe_depth.depth_consistency"), std::string::npos);
-  // The constructor validates too.
-  o = KeyframeDepthOptions();
-  o.neighborhood_radius_px = -1;
-  EXPECT_THROW(KeyframeDepth(testKeyframe(), testCamera(), Cloud(3, 0), o), InputError);
+  using O = KeyframeDepthOptions;
+  test::expectEachRefused<O>(
+      {
+          {[](O* o) { o->neighborhood_radius_px = -1; }, "keyframe_depth.neighborhood_radius_px"},
+          {[](O* o) { o->min_depth = 0.0; }, "keyframe_depth.min_depth"},
+          {[](O* o) { o->max_depth = 1e-7; }, "keyframe_depth.max_depth"},  // below min_depth
+          {[](O* o) { o->max_cloud_points_projected = -5; }, "keyframe_depth.max_cloud_points_projected"},
+          {[](O* o) { o->depth_consistency = std::nan(""); }, "keyframe_depth.depth_consistency"},
+      },
+      [](const O& o) {  // the constructor validates too
+        EXPECT_THROW(KeyframeDepth(testKeyframe(), testCamera(), Cloud(3, 0), o), InputError);
+      });
 }
 
 }  // namespace

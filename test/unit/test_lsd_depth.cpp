@@ -7,6 +7,7 @@
 #include <random>
 #include <string>
 
+#include "common/option_checks.h"
 #include "pcr_pro/frontend/keyframe_depth.h"
 #include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/io/lsd_keyframe.h"
@@ -177,12 +178,10 @@ TEST(KeyframeDepthUncertainty, BadStddevImagesThrow) {
   kf.depth = cv::Mat();
   kf.depth_stddev = cv::Mat::zeros(48, 64, CV_32FC1);
   EXPECT_THROW(KeyframeDepth(kf, cam, Cloud(3, 0)), InputError);
-  KeyframeDepthOptions bad;
-  bad.max_relative_stddev = 1.0;
-  EXPECT_THROW(validate(bad), InputError);
-  bad = KeyframeDepthOptions();
-  bad.spatial_sigma_px = 0.0;
-  EXPECT_THROW(validate(bad), InputError);
+  test::expectEachRefused<KeyframeDepthOptions>({
+      {[](KeyframeDepthOptions* o) { o->max_relative_stddev = 1.0; }, "keyframe_depth.max_relative_stddev"},
+      {[](KeyframeDepthOptions* o) { o->spatial_sigma_px = 0.0; }, "keyframe_depth.spatial_sigma_px"},
+  });
 }
 
 TEST(SimilarityAdjoint, ConjugatesSmallPerturbations) {

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "common/data_dir.h"
+#include "common/option_checks.h"
 #include "pcr_pro/frontend/feature_matching.h"
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/frontend/relative_pose.h"
@@ -384,38 +385,16 @@ TEST(RelativePose, DefaultsAndValidation) {
   EXPECT_DOUBLE_EQ(d.min_inlier_ratio, 0.3);
   EXPECT_NO_THROW(validate(d));
 
-  auto expectKey = [](RelativePoseOptions o, const std::string& key) {
-    try {
-      validate(o);
-      ADD_FAILURE() << "no error for " << key;
-    } catch (const InputError& e) {
-      EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
-    }
-  };
-  RelativePoseOptions o;
-  o.pixel_error = 0.0;
-  expectKey(o, "relative_pose.pixel_error");
-  o = d;
-  o.pixel_error = std::numeric_limits<double>::quiet_NaN();
-  expectKey(o, "relative_pose.pixel_error");
-  o = d;
-  o.max_iterations = 0;
-  expectKey(o, "relative_pose.max_iterations");
-  o = d;
-  o.probability = 1.0;
-  expectKey(o, "relative_pose.probability");
-  o = d;
-  o.min_inliers = 4;
-  expectKey(o, "relative_pose.min_inliers");
-  o = d;
-  o.min_inlier_ratio = 1.5;
-  expectKey(o, "relative_pose.min_inlier_ratio");
-  o = d;
-  o.min_spread_px = -1.0;
-  expectKey(o, "relative_pose.min_spread_px");
-  o = d;
-  o.algorithm = static_cast<RelativePoseAlgorithm>(42);
-  expectKey(o, "relative_pose.algorithm");
+  test::expectEachRefused<RelativePoseOptions>({
+      {[](RelativePoseOptions* o) { o->pixel_error = 0.0; }, "relative_pose.pixel_error"},
+      {[](RelativePoseOptions* o) { o->pixel_error = std::numeric_limits<double>::quiet_NaN(); }, "relative_pose.pixel_error"},
+      {[](RelativePoseOptions* o) { o->max_iterations = 0; }, "relative_pose.max_iterations"},
+      {[](RelativePoseOptions* o) { o->probability = 1.0; }, "relative_pose.probability"},
+      {[](RelativePoseOptions* o) { o->min_inliers = 4; }, "relative_pose.min_inliers"},
+      {[](RelativePoseOptions* o) { o->min_inlier_ratio = 1.5; }, "relative_pose.min_inlier_ratio"},
+      {[](RelativePoseOptions* o) { o->min_spread_px = -1.0; }, "relative_pose.min_spread_px"},
+      {[](RelativePoseOptions* o) { o->algorithm = static_cast<RelativePoseAlgorithm>(42); }, "relative_pose.algorithm"},
+  });
 }
 
 TEST(RelativePose, BadArgumentsThrow) {

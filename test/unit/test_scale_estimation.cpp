@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "common/option_checks.h"
 #include "pcr_pro/frontend/scale_estimation.h"
 #include "pcr_pro/geometry/sim3.h"
 
@@ -152,34 +153,28 @@ void meanAndVariance(const std::vector<double>& values, double* mean, double* va
   *var /= static_cast<double>(values.size() - 1);
 }
 
-TEST(ScaleEstimationTest, NormalisedErrorIsConsistent) {
-  // Without outliers the reported standard deviation must match the actual error spread.
-  const std::vector<double> normalised = normalisedErrors(200, 40, 1000);
+// Checks that 200 normalised errors look standard normal (and records their mean and variance):
+// variance in [0.5, 2], mean within +-0.3, about 4 of the standard deviations of a mean of 200.
+void expectStandardNormal(const std::vector<double>& normalised) {
   ASSERT_EQ(normalised.size(), 200u);
-  double mean = 0.0;
-  double var = 0.0;
+  double mean = 0.0, var = 0.0;
   meanAndVariance(normalised, &mean, &var);
-  RecordProperty("normalised_error_mean", std::to_string(mean));
-  RecordProperty("normalised_error_variance", std::to_string(var));
+  ::testing::Test::RecordProperty("normalised_error_mean", std::to_string(mean));
+  ::testing::Test::RecordProperty("normalised_error_variance", std::to_string(var));
   EXPECT_GE(var, 0.5);
   EXPECT_LE(var, 2.0);
-  // The mean of 200 unit-variance errors is within +-0.3 (about 4 of its standard deviations).
   EXPECT_LT(std::abs(mean), 0.3);
+}
+
+TEST(ScaleEstimationTest, NormalisedErrorIsConsistent) {
+  // Without outliers the reported standard deviation must match the actual error spread.
+  expectStandardNormal(normalisedErrors(200, 40, 1000));
 }
 
 TEST(ScaleEstimationTest, NoErrorsInVariablesBiasWithManyMatches) {
   // The noise of the source points biases a plain filter towards a smaller scale by ~0.1 %;
   // with 300 matches that is ~0.7 standard deviations, so an uncorrected filter fails here.
-  const std::vector<double> normalised = normalisedErrors(200, 300, 7000);
-  ASSERT_EQ(normalised.size(), 200u);
-  double mean = 0.0;
-  double var = 0.0;
-  meanAndVariance(normalised, &mean, &var);
-  RecordProperty("normalised_error_mean", std::to_string(mean));
-  RecordProperty("normalised_error_variance", std::to_string(var));
-  EXPECT_LT(std::abs(mean), 0.3);
-  EXPECT_GE(var, 0.5);
-  EXPECT_LE(var, 2.0);
+  expectStandardNormal(normalisedErrors(200, 300, 7000));
 }
 
 // Per-match covariances (e.g. from LSD-SLAM's inverse-depth variance): half the matches are ten
@@ -355,39 +350,17 @@ TEST(ScaleEstimationTest, InvalidInputThrows) {
 }
 
 TEST(ScaleEstimationTest, OptionValidationNamesTheKey) {
-  auto messageOf = [](const ScaleEstimationOptions& o) -> std::string {
-    try {
-      validate(o);
-    } catch (const InputError& e) {
-      return e.what();
-    }
-    return "";
-  };
-  EXPECT_EQ(messageOf(ScaleEstimationOptions()), "");
-  ScaleEstimationOptions o;
-  o.relative_depth_noise = 0.0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.relative_depth_noise"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.relative_lateral_noise = -1.0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.relative_lateral_noise"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.gating_chi2 = std::nan("");
-  EXPECT_NE(messageOf(o).find("scale_estimation.gating_chi2"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.min_inliers = 1;
-  EXPECT_NE(messageOf(o).find("scale_estimation.min_inliers"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.min_inlier_ratio = 1.5;
-  EXPECT_NE(messageOf(o).find("scale_estimation.min_inlier_ratio"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.max_relative_stddev = 0.0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.max_relative_stddev"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.passes = 0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.passes"), std::string::npos);
-  o = ScaleEstimationOptions();
-  o.prior_relative_stddev = 0.0;
-  EXPECT_NE(messageOf(o).find("scale_estimation.prior_relative_stddev"), std::string::npos);
+  using O = ScaleEstimationOptions;
+  test::expectEachRefused<O>({
+      {[](O* o) { o->relative_depth_noise = 0.0; }, "scale_estimation.relative_depth_noise"},
+      {[](O* o) { o->relative_lateral_noise = -1.0; }, "scale_estimation.relative_lateral_noise"},
+      {[](O* o) { o->gating_chi2 = std::nan(""); }, "scale_estimation.gating_chi2"},
+      {[](O* o) { o->min_inliers = 1; }, "scale_estimation.min_inliers"},
+      {[](O* o) { o->min_inlier_ratio = 1.5; }, "scale_estimation.min_inlier_ratio"},
+      {[](O* o) { o->max_relative_stddev = 0.0; }, "scale_estimation.max_relative_stddev"},
+      {[](O* o) { o->passes = 0; }, "scale_estimation.passes"},
+      {[](O* o) { o->prior_relative_stddev = 0.0; }, "scale_estimation.prior_relative_stddev"},
+  });
 }
 
 TEST(ScaleEstimationTest, StrictLimitsTurnIntoScaleFailed) {

@@ -750,6 +750,20 @@ TEST(SimConfig, DemoConfigChangesOnlyTheFieldsItMeansTo) {
   }
 }
 
+// Options built in C++ meet the same schema ranges as a file's (validate() runs them).
+TEST(SimConfig, ValidateChecksTheSchemaRanges) {
+  WorldOptions world;
+  EXPECT_NO_THROW(validate(world));
+  world.max_box_depth = 0.2;  // below the 0.25 m lower end of a box's depth draw
+  EXPECT_THROW(validate(world), InputError);
+  RenderOptions render;
+  render.near = 0.0;
+  EXPECT_THROW(validate(render), InputError);
+  SemiDenseOptions semi_dense;
+  semi_dense.outlier_fraction = 0.6;
+  EXPECT_THROW(validate(semi_dense), InputError);
+}
+
 TEST(SimConfig, BadConfigsNameTheKey) {
   const std::vector<std::pair<std::string, std::string>> cases{
       {"layout: {overlap: 2}", "layout.overlap"},
@@ -764,6 +778,12 @@ TEST(SimConfig, BadConfigsNameTheKey) {
       {"agents: two", "agents"},
       {"camera: {width: 0}", "camera"},
       {"trajectory: {camera_height: 2.7}", "trajectory.camera_height"},
+      // per-field ranges from the schemas (world.h documents the same), cross-field ones from validate()
+      {"world: {max_box_depth: 0.2}", "world.max_box_depth: must be in [0.25, 2], got 0.2 (line 1)"},
+      {"render: {supersampling: 9}", "render.supersampling: must be in [1, 4], got 9 (line 1)"},
+      {"map: {semi_dense: {subsample: 0}}", "map.semi_dense.subsample: must be >= 1, got 0 (line 1)"},
+      {"world: {room_height: 2.5, max_wall_box_height: 2.45}", "world.max_wall_box_height: must be <= room_height - 0.1 = 2.4"},
+      {"world: {texture: {texel: 0.01, min_shape_size: 0.015}}", "world.texture.min_shape_size: must be >= 2 texture.texel = 0.02"},
   };
   for (const auto& [text, key] : cases) {
     try {

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "pcr_pro/io/input_limits.h"
+#include "pcr_pro/io/param_schema.h"
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/geometry/sim3.h"
 
@@ -36,6 +37,11 @@ using ImageFileReader = std::function<cv::Mat(const std::string& path, const cv:
  * @throw InputError "<path>: cannot read image[: reason]"
  */
 cv::Mat decodeImageFile(const std::string& path, const cv::Size& expected_size);
+
+/// The schema of a bundle's `camera` block (also the simulator configuration's): fx, fy, width,
+/// height > 0 [px], cx, cy finite [px], every key required in a bundle.
+template <>
+const ParamSchema<PinholeCamera>& paramSchema<PinholeCamera>();
 
 /**
  * @brief Reads a map bundle: DIR/bundle.yaml and the files it names (paths relative to DIR).

@@ -13,6 +13,7 @@
 
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/geometry/sim3.h"
+#include "pcr_pro/io/param_schema.h"
 #include "pcr_pro/sim/world.h"
 
 namespace pcr_pro {
@@ -30,6 +31,10 @@ struct RenderOptions {
 
 /// @throw InputError naming the option ("render.supersampling: must be in [1, 4], got 0")
 void validate(const RenderOptions& options);
+
+/// The schema of the block `render`.
+template <>
+const ParamSchema<RenderOptions>& paramSchema<RenderOptions>();
 
 /// What render() returns.
 struct RenderedView {

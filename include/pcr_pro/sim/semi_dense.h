@@ -15,6 +15,7 @@
 
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -47,6 +48,10 @@ struct SemiDenseOptions {
 
 /// @throw InputError naming the option ("semi_dense.min_gradient: must be > 0, got 0")
 void validate(const SemiDenseOptions& options);
+
+/// The schema of the options (block `semi_dense`; in the simulator's configuration `map.semi_dense`).
+template <>
+const ParamSchema<SemiDenseOptions>& paramSchema<SemiDenseOptions>();
 
 /// The semi-dense depth of one keyframe.
 struct SemiDenseKeyframe {

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
 
@@ -23,16 +24,16 @@ struct TextureOptions {
   /// Texel size [m], in [0.001, 0.05]. A camera 1.5 m away with a 525 px focal length sees
   /// 2.9 mm per pixel: 5 mm texels are magnified less than 2x there.
   double texel = 0.005;
-  /// Smallest shape drawn [m], > 0; SIFT at 640x480 finds blobs of about 4 px and more, which
-  /// is 1.5 cm at 2 m.
+  /// Smallest shape drawn [m], in (0, 10] and >= 2 texel; SIFT at 640x480 finds blobs of about
+  /// 4 px and more, which is 1.5 cm at 2 m.
   double min_shape_size = 0.015;
-  /// Largest shape drawn [m], >= min_shape_size.
+  /// Largest shape drawn [m], in (0, 10] and >= min_shape_size.
   double max_shape_size = 0.6;
   /// Fraction of a face that the shapes of the largest size octave cover (they overlap) [-],
-  /// in (0, 5]; each smaller octave covers detail_decay times that of the octave above, so
+  /// in [0.001, 5]; each smaller octave covers detail_decay times that of the octave above, so
   /// that fine detail is sprinkled over larger shapes instead of making the face a uniform grain.
   double coverage = 0.8;
-  /// Coverage ratio of one size octave to the next larger one [-], in (0, 1].
+  /// Coverage ratio of one size octave to the next larger one [-], in [0.001, 1].
   double detail_decay = 0.6;
   /// Gaussian blur of the drawn texture, a band limit against aliasing [texels], in [0, 5].
   double blur = 0.7;
@@ -47,10 +48,13 @@ struct WorldOptions {
   /// max_wall_box_height high and max_box_depth deep; boxes away from the walls are at most
   /// max_free_box_height high (a camera above that height never hits them).
   int boxes = 8;
-  double max_box_depth = 0.7;        ///< [m], in [0.1, 2]
-  double max_wall_box_height = 2.0;  ///< [m], > 0, < room_height
-  double max_free_box_height = 1.0;  ///< [m], > 0, < room_height
-  /// Smallest distance of a free-standing box from the walls [m], >= 0.
+  /// The lower ends below are those of the uniform draws (a box is 0.25 m to max_box_depth deep,
+  /// 0.4 m to max_wall_box_height or 0.35 m to max_free_box_height high), so a maximum below them
+  /// would make an empty interval.
+  double max_box_depth = 0.7;        ///< [m], in [0.25, 2]
+  double max_wall_box_height = 2.0;  ///< [m], >= 0.4 and <= room_height - 0.1
+  double max_free_box_height = 1.0;  ///< [m], >= 0.35 and <= room_height - 0.1
+  /// Smallest distance of a free-standing box from the walls [m], in [0, 50].
   double free_box_wall_distance = 1.6;
   /// Ambient share of the lighting [-], in [0, 1]; the rest comes from two point lights near
   /// the ceiling (Lambertian, view-independent, so that every camera sees the same shading).
@@ -60,6 +64,13 @@ struct WorldOptions {
 
 /// @throw InputError naming the option ("world.room_length: must be in [2, 100], got 1")
 void validate(const WorldOptions& options);
+
+/// The schemas of the blocks `world` and `world.texture` (per-field ranges; validate() adds the
+/// ones that depend on other fields).
+template <>
+const ParamSchema<WorldOptions>& paramSchema<WorldOptions>();
+template <>
+const ParamSchema<TextureOptions>& paramSchema<TextureOptions>();
 
 /// A texture with its mip pyramid.
 struct Texture {

@@ -2,242 +2,61 @@
 
 #include <yaml-cpp/yaml.h>
 
-#include <algorithm>
-#include <cctype>
-#include <climits>
-#include <cmath>
 #include <cstdint>
-#include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <initializer_list>
 #include <iterator>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <sstream>
 #include <utility>
 #include <vector>
 
+#include "io/yaml_block.h"
+#include "io/yaml_fields.h"
 #include "pcr_pro/io/cloud_io.h"
 #include "pcr_pro/io/file_errors.h"
 #include "pcr_pro/io/plausibility.h"
 #include "pcr_pro/io/text_escape.h"
 
 namespace pcr_pro {
+
+// The camera block of a bundle (and of the simulator's configuration). Per-field ranges only:
+// the rules that relate fields (focal length >= 1 px, principal point within one image size of
+// the image, the pixel limit) are checked by checkIntrinsics() after binding.
+template <>
+const ParamSchema<PinholeCamera>& paramSchema<PinholeCamera>() {
+  using O = PinholeCamera;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"camera", {
+      {"fx", &O::fx, R::above(0), "px", "focal length along x"},
+      {"fy", &O::fy, R::above(0), "px", "focal length along y"},
+      {"cx", &O::cx, R::any(), "px", "principal point x (column of the optical axis)"},
+      {"cy", &O::cy, R::any(), "px", "principal point y (row of the optical axis)"},
+      {"width", &O::width, R::above(0), "px", "image width"},
+      {"height", &O::height, R::above(0), "px", "image height"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
 namespace {
 
 namespace fs = std::filesystem;
 
-// Keeps a message on one line and bounded, whatever the file holds.
-std::string oneLine(const std::string& text, std::size_t max_length = 200) {
-  std::string out;
-  for (char c : text) {
-    if (out.size() >= max_length) {
-      out += "...";
-      break;
-    }
-    out += (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) ? ' ' : c;
-  }
-  return out;
-}
-
-std::string describe(const YAML::Node& node) {
-  switch (node.Type()) {
-    case YAML::NodeType::Null:
-      return "null";
-    case YAML::NodeType::Scalar:
-      return "'" + printable(node.Scalar(), 60) + "'";
-    case YAML::NodeType::Sequence:
-      return "a list";
-    case YAML::NodeType::Map:
-      return "a map";
-    case YAML::NodeType::Undefined:
-      break;
-  }
-  return "nothing";
-}
-
-std::string numberText(double value) {
-  std::ostringstream ss;
-  ss << value;
-  return ss.str();
-}
-
-std::string child(const std::string& parent, const std::string& key) {
-  return parent.empty() ? key : parent + "." + key;
-}
-
-std::string element(const std::string& parent, std::size_t index) { return parent + "[" + std::to_string(index) + "]"; }
-
-bool isQuoted(const YAML::Node& node) {
-  // yaml-cpp tags quoted scalars "!" and explicit strings with the core str tag.
-  return node.Tag() == "!" || node.Tag() == "tag:yaml.org,2002:str";
-}
-
-/// The entries of one YAML map, checked for duplicate and unknown keys.
-struct Fields {
-  std::string path;  // field path of the map itself ("" for the document root)
-  YAML::Node node;
-  std::vector<std::pair<std::string, YAML::Node>> entries;
-
-  const YAML::Node* find(const std::string& key) const {
-    for (const auto& entry : entries) {
-      if (entry.first == key) return &entry.second;
-    }
-    return nullptr;
-  }
-};
-
-/// Validating accessors that turn every defect into an InputError naming file and field.
-class FieldReader {
- public:
-  explicit FieldReader(std::string file, std::vector<std::string>* warnings = nullptr)
-      : file_(std::move(file)), warnings_(warnings) {}
-
-  const std::string& file() const { return file_; }
-
-  [[noreturn]] void fail(const std::string& field, const YAML::Node& at, const std::string& problem) const {
-    std::string message = file_ + ": ";
-    if (!field.empty()) message += field + ": ";
-    message += problem;
-    throw InputError(oneLine(message + lineOf(at), 400));
-  }
-
-  /// A warning "<file>: <text> (line N)" for the caller, when it asked for warnings.
-  void warn(const YAML::Node& at, const std::string& text) const {
-    if (warnings_ && !text.empty()) warnings_->push_back(oneLine(file_ + ": " + text + lineOf(at), 400));
-  }
-
-  /**
-   * Checks that `node` is a map with plain, unique keys; with `allowed` non-empty, every key must
-   * be one of them.
-   */
-  Fields fields(const YAML::Node& node, const std::string& field, std::initializer_list<const char*> allowed) const {
-    if (!node.IsMap()) {
-      fail(field, node, std::string(field.empty() ? "top level" : "value") + " must be a map, got " + describe(node));
-    }
-    Fields out;
-    out.path = field;
-    out.node = node;
-    for (auto it = node.begin(); it != node.end(); ++it) {
-      if (!it->first.IsScalar()) fail(field, it->first, "keys must be plain strings, got " + describe(it->first));
-      const std::string key = it->first.Scalar();
-      if (out.find(key) != nullptr) fail(child(field, key), it->first, "duplicate key");
-      if (allowed.size() > 0) {
-        bool known = false;
-        std::string list;
-        for (const char* name : allowed) {
-          known = known || key == name;
-          list += (list.empty() ? "" : ", ") + std::string(name);
-        }
-        if (!known) fail(child(field, key), it->first, "unknown key (allowed: " + list + ")");
-      }
-      out.entries.emplace_back(key, it->second);
-    }
-    return out;
-  }
-
-  const YAML::Node& require(const Fields& map, const std::string& key) const {
-    const YAML::Node* value = map.find(key);
-    if (value == nullptr) fail(child(map.path, key), map.node, "missing (required key)");
-    return *value;
-  }
-
-  double number(const YAML::Node& node, const std::string& field) const {
-    if (!node.IsScalar()) fail(field, node, "must be a number, got " + describe(node));
-    if (isQuoted(node)) fail(field, node, "must be a number, got the string " + describe(node));
-    double value = 0.0;
-    if (!YAML::convert<double>::decode(node, value)) fail(field, node, "must be a number, got " + describe(node));
-    if (!std::isfinite(value)) fail(field, node, "must be finite, got " + describe(node));
-    return value;
-  }
-
-  double positive(const YAML::Node& node, const std::string& field) const {
-    const double value = number(node, field);
-    if (!(value > 0.0)) fail(field, node, "must be > 0, got " + numberText(value));
-    return value;
-  }
-
-  long long integer(const YAML::Node& node, const std::string& field) const {
-    if (!node.IsScalar()) fail(field, node, "must be an integer, got " + describe(node));
-    if (isQuoted(node)) fail(field, node, "must be an integer, got the string " + describe(node));
-    long long value = 0;
-    if (!YAML::convert<long long>::decode(node, value)) {
-      fail(field, node, "must be an integer, got " + describe(node));
-    }
-    return value;
-  }
-
-  int positiveInt(const YAML::Node& node, const std::string& field) const {
-    const long long value = integer(node, field);
-    if (value <= 0) fail(field, node, "must be > 0, got " + std::to_string(value));
-    if (value > INT_MAX) fail(field, node, "is too large (" + std::to_string(value) + ")");
-    return static_cast<int>(value);
-  }
-
-  std::string text(const YAML::Node& node, const std::string& field) const {
-    if (!node.IsScalar()) fail(field, node, "must be a string, got " + describe(node));
-    if (node.Scalar().empty()) fail(field, node, "must not be empty");
-    return node.Scalar();
-  }
-
-  bool boolean(const YAML::Node& node, const std::string& field) const {
-    bool value = false;
-    if (!node.IsScalar() || !YAML::convert<bool>::decode(node, value)) {
-      fail(field, node, "must be true or false, got " + describe(node));
-    }
-    return value;
-  }
-
-  std::vector<double> numbers(const YAML::Node& node, const std::string& field, std::size_t size) const {
-    const std::string expected = "must be a list of " + std::to_string(size) + " numbers";
-    if (!node.IsSequence()) fail(field, node, expected + ", got " + describe(node));
-    if (node.size() != size) fail(field, node, expected + ", got " + std::to_string(node.size()));
-    std::vector<double> values;
-    for (std::size_t i = 0; i < size; ++i) values.push_back(number(node[i], element(field, i)));
-    return values;
-  }
-
-  Eigen::Quaterniond quaternion(const YAML::Node& node, const std::string& field) const {
-    const std::vector<double> v = numbers(node, field, 4);
-    Eigen::Quaterniond q(v[3], v[0], v[1], v[2]);  // stored as x y z w
-    if (!(q.norm() >= 1e-12)) fail(field, node, "zero quaternion (norm < 1e-12)");
-    warn(node, quaternionNormWarning(q.norm(), field));
-    q.normalize();
-    return q;
-  }
-
-  Eigen::Vector3d vector3(const YAML::Node& node, const std::string& field) const {
-    const std::vector<double> v = numbers(node, field, 3);
-    return Eigen::Vector3d(v[0], v[1], v[2]);
-  }
-
- private:
-  static std::string lineOf(const YAML::Node& at) {
-    const YAML::Mark mark = at.Mark();
-    return mark.line >= 0 ? " (line " + std::to_string(mark.line + 1) + ")" : std::string();
-  }
-
-  std::string file_;
-  std::vector<std::string>* warnings_ = nullptr;
-};
+using yaml_detail::childKey;
+using yaml_detail::elementKey;
+using yaml_detail::FieldReader;
+using yaml_detail::Fields;
+using yaml_detail::oneLine;
 
 YAML::Node loadYamlFile(const std::string& path) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw InputError(path + ": " + missingFileReason(ec, "file not found"));
   if (!fs::is_regular_file(path, ec)) throw InputError(path + ": not a regular file");
-  try {
-    return YAML::LoadFile(path);
-  } catch (const YAML::ParserException& e) {
-    throw InputError(oneLine(path + ": YAML syntax error at line " + std::to_string(e.mark.line + 1) + ", column " +
-                                 std::to_string(e.mark.column + 1) + ": " + e.msg,
-                             400));
-  } catch (const YAML::BadFile&) {
-    throw InputError(path + ": cannot open file (unreadable)");
-  } catch (const YAML::Exception& e) {
-    throw InputError(oneLine(path + ": cannot parse YAML: " + e.what(), 400));
-  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(path + ": cannot open file (unreadable)");
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return yaml_detail::parseYaml(text, path);
 }
 
 std::string matDescription(const cv::Mat& m) {
@@ -337,37 +156,40 @@ struct KeyframeSpec {
 
 Sim3 parseSim3(const FieldReader& reader, const YAML::Node& node, const std::string& field) {
   const Fields f = reader.fields(node, field, {"scale", "rotation", "translation"});
-  const double scale = reader.positive(reader.require(f, "scale"), child(field, "scale"));
-  const Eigen::Quaterniond q = reader.quaternion(reader.require(f, "rotation"), child(field, "rotation"));
-  const Eigen::Vector3d t = reader.vector3(reader.require(f, "translation"), child(field, "translation"));
+  const double scale = reader.positive(reader.require(f, "scale"), childKey(field, "scale"));
+  const Eigen::Quaterniond q = reader.quaternion(reader.require(f, "rotation"), childKey(field, "rotation"));
+  const Eigen::Vector3d t = reader.vector3(reader.require(f, "translation"), childKey(field, "translation"));
   return Sim3(scale, q, t);
 }
 
 // A focal length below one pixel or a principal point farther than one image size outside the
 // image is no camera anyone calibrated: a unit or field mix-up (metres, normalised coordinates,
-// cx and width swapped) that would otherwise give a merge without any error.
-void checkIntrinsics(const FieldReader& reader, const Fields& cam, const PinholeCamera& camera) {
+// cx and width swapped) that would otherwise give a merge without any error. These rules relate
+// several fields, so they stay code beside the schema's per-field ranges.
+void checkIntrinsics(const FieldReader& reader, const Fields& cam, const PinholeCamera& camera,
+                     const InputLimits& limits) {
   if (const auto problem = implausibleIntrinsics(camera)) {
     reader.fail("camera." + problem->first, reader.require(cam, problem->first), problem->second);
   }
-}
-
-PinholeCamera parseCamera(const FieldReader& reader, const Fields& top, const InputLimits& limits) {
-  const Fields cam = reader.fields(reader.require(top, "camera"), "camera", {"fx", "fy", "cx", "cy", "width", "height"});
-  PinholeCamera camera;
-  camera.fx = reader.positive(reader.require(cam, "fx"), "camera.fx");
-  camera.fy = reader.positive(reader.require(cam, "fy"), "camera.fy");
-  camera.cx = reader.number(reader.require(cam, "cx"), "camera.cx");
-  camera.cy = reader.number(reader.require(cam, "cy"), "camera.cy");
-  camera.width = reader.positiveInt(reader.require(cam, "width"), "camera.width");
-  camera.height = reader.positiveInt(reader.require(cam, "height"), "camera.height");
-  checkIntrinsics(reader, cam, camera);
   const long long pixels = static_cast<long long>(camera.width) * camera.height;
   if (pixels > limits.max_image_pixels) {
     reader.fail("camera.width", cam.node,
                 "camera.width x camera.height = " + std::to_string(pixels) +
                     " px, more than limits.max_image_pixels = " + std::to_string(limits.max_image_pixels));
   }
+}
+
+// The camera block binds through the camera's schema: every key required, no other key.
+PinholeCamera parseCamera(const FieldReader& reader, const Fields& top, const InputLimits& limits) {
+  const ParamSchema<PinholeCamera>& schema = paramSchema<PinholeCamera>();
+  config_detail::Block block(reader, reader.require(top, schema.block), schema.block,
+                             config_detail::Block::Keys::kRequired);
+  std::vector<std::string> keys;
+  for (const Param<PinholeCamera>& p : schema.params) keys.push_back(p.key);
+  block.allowOnly(keys);
+  PinholeCamera camera;
+  config_detail::bindParams(schema, &block, &camera);
+  checkIntrinsics(reader, block.fields(), camera, limits);
   return camera;
 }
 
@@ -377,40 +199,38 @@ KeyframeSpec parseKeyframeSpec(const FieldReader& reader, const YAML::Node& node
   const Fields kf = reader.fields(node, field, {"id", "image", "pose", "depth", "depth_scale"});
   KeyframeSpec spec;
   const YAML::Node& id_node = reader.require(kf, "id");
-  const long long id = reader.integer(id_node, child(field, "id"));
+  const long long id = reader.integer(id_node, childKey(field, "id"));
   const auto seen = first_index->find(id);
   if (seen != first_index->end()) {
-    reader.fail(child(field, "id"), id_node,
+    reader.fail(childKey(field, "id"), id_node,
                 "duplicate keyframe id " + std::to_string(id) + " (also keyframes[" + std::to_string(seen->second) +
                     "].id)");
   }
   first_index->emplace(id, index);
   spec.id = static_cast<long>(id);
-  spec.image = reader.text(reader.require(kf, "image"), child(field, "image"));
+  spec.image = reader.text(reader.require(kf, "image"), childKey(field, "image"));
 
-  const std::string pose_field = child(field, "pose");
+  const std::string pose_field = childKey(field, "pose");
   const Fields pose = reader.fields(reader.require(kf, "pose"), pose_field, {"position", "orientation", "scale"});
-  const Eigen::Vector3d position = reader.vector3(reader.require(pose, "position"), child(pose_field, "position"));
-  const Eigen::Quaterniond q = reader.quaternion(reader.require(pose, "orientation"), child(pose_field, "orientation"));
+  const Eigen::Vector3d position = reader.vector3(reader.require(pose, "position"), childKey(pose_field, "position"));
+  const Eigen::Quaterniond q = reader.quaternion(reader.require(pose, "orientation"), childKey(pose_field, "orientation"));
   double scale = 1.0;
-  if (const YAML::Node* s = pose.find("scale")) scale = reader.positive(*s, child(pose_field, "scale"));
+  if (const YAML::Node* s = pose.find("scale")) scale = reader.positive(*s, childKey(pose_field, "scale"));
   spec.pose = Sim3(scale, q, position);
 
   const YAML::Node* depth = kf.find("depth");
   const YAML::Node* depth_scale = kf.find("depth_scale");
-  if (depth_scale != nullptr) spec.depth_scale = reader.positive(*depth_scale, child(field, "depth_scale"));
+  if (depth_scale != nullptr) spec.depth_scale = reader.positive(*depth_scale, childKey(field, "depth_scale"));
   if (depth != nullptr) {
-    spec.depth = reader.text(*depth, child(field, "depth"));
-    if (depth_scale == nullptr) reader.fail(child(field, "depth_scale"), kf.node, "required when depth is given");
+    spec.depth = reader.text(*depth, childKey(field, "depth"));
+    if (depth_scale == nullptr) reader.fail(childKey(field, "depth_scale"), kf.node, "required when depth is given");
   }
   return spec;
 }
 
 std::vector<KeyframeSpec> parseKeyframeSpecs(const FieldReader& reader, const Fields& top, const InputLimits& limits) {
   const YAML::Node& keyframes = reader.require(top, "keyframes");
-  if (!keyframes.IsSequence()) {
-    reader.fail("keyframes", keyframes, "must be a list of keyframes, got " + describe(keyframes));
-  }
+  reader.list(keyframes, "keyframes", "keyframes");
   if (keyframes.size() == 0) reader.fail("keyframes", keyframes, "no keyframes (need at least one)");
   if (static_cast<std::int64_t>(keyframes.size()) > limits.max_keyframes) {
     reader.fail("keyframes", keyframes,
@@ -420,7 +240,7 @@ std::vector<KeyframeSpec> parseKeyframeSpecs(const FieldReader& reader, const Fi
   std::vector<KeyframeSpec> specs;
   std::map<long long, std::size_t> first_index;
   for (std::size_t i = 0; i < keyframes.size(); ++i) {
-    specs.push_back(parseKeyframeSpec(reader, keyframes[i], element("keyframes", i), i, &first_index));
+    specs.push_back(parseKeyframeSpec(reader, keyframes[i], elementKey("keyframes", i), i, &first_index));
   }
   return specs;
 }
@@ -433,14 +253,14 @@ std::vector<MapKeyframe> readKeyframeFiles(const fs::path& base, const std::stri
   keyframes.reserve(specs.size());
   for (std::size_t i = 0; i < specs.size(); ++i) {
     const KeyframeSpec& spec = specs[i];
-    const std::string field = element("keyframes", i);
+    const std::string field = elementKey("keyframes", i);
     MapKeyframe kf;
     kf.id = spec.id;
     kf.pose = spec.pose;
     try {
-      kf.image = loadGreyImage((base / spec.image).string(), child(field, "image"), camera, read);
+      kf.image = loadGreyImage((base / spec.image).string(), childKey(field, "image"), camera, read);
       if (!spec.depth.empty()) {
-        kf.depth = loadDepthImage((base / spec.depth).string(), child(field, "depth"), camera, spec.depth_scale, read);
+        kf.depth = loadDepthImage((base / spec.depth).string(), childKey(field, "depth"), camera, spec.depth_scale, read);
       }
     } catch (const cv::Exception& e) {
       throw InputError(oneLine(yaml_path + ": " + field + ": image conversion failed: " + e.what(), 400));
@@ -495,7 +315,7 @@ BundleTruth readTruth(const std::string& path) {
   const FieldReader reader(path);
   BundleTruth truth;
   try {
-    const Fields top = reader.fields(root, "", {});
+    const Fields top = reader.fields(root, "");
     if (const YAML::Node* n = top.find("target")) truth.target_agent = reader.text(*n, "target");
     if (const YAML::Node* n = top.find("source")) truth.source_agent = reader.text(*n, "source");
     if (const YAML::Node* n = top.find("overlap")) truth.overlap = reader.boolean(*n, "overlap");
@@ -503,14 +323,14 @@ BundleTruth readTruth(const std::string& path) {
     truth.world_to_target = parseSim3(reader, reader.require(top, "world_to_target"), "world_to_target");
     truth.world_to_source = parseSim3(reader, reader.require(top, "world_to_source"), "world_to_source");
     if (const YAML::Node* poses = top.find("world_poses")) {
-      const Fields all = reader.fields(*poses, "world_poses", {});
-      for (const auto& entry : all.entries) {
-        const std::string field = child("world_poses", entry.first);
-        const long id = static_cast<long>(reader.integer(YAML::Node(entry.first), field));
-        const Fields pose = reader.fields(entry.second, field, {"position", "orientation"});
-        const Eigen::Vector3d position = reader.vector3(reader.require(pose, "position"), child(field, "position"));
+      const Fields all = reader.fields(*poses, "world_poses");
+      for (const yaml_detail::Entry& entry : all.entries) {
+        const std::string field = childKey("world_poses", printable(entry.key));
+        const long id = static_cast<long>(reader.integer(entry.key_node, field));
+        const Fields pose = reader.fields(entry.value, field, {"position", "orientation"});
+        const Eigen::Vector3d position = reader.vector3(reader.require(pose, "position"), childKey(field, "position"));
         const Eigen::Quaterniond q =
-            reader.quaternion(reader.require(pose, "orientation"), child(field, "orientation"));
+            reader.quaternion(reader.require(pose, "orientation"), childKey(field, "orientation"));
         truth.world_poses[id] = Sim3(1.0, q, position);
       }
     }

@@ -1,12 +1,13 @@
-// Internal helper of the configuration loaders: reads one YAML block into an options struct,
-// naming "<origin>: <dotted.key>: <what>" in every error and rejecting unknown keys.
+// Internal helper of the configuration loaders and the bundle reader: binds one YAML block into
+// an options struct through its parameter schema, with the one field reader (yaml_fields.h), so
+// that every error names "<origin>: <dotted.key>: <what> (line N)" and unknown keys are refused.
 #pragma once
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <map>
 #include <memory>
-#include <set>
 #include <string>
 #include <type_traits>
 #include <utility>
@@ -15,83 +16,92 @@
 #include "pcr_pro/registration/config.h"
 #include "pcr_pro/geometry/types.h"
 #include "pcr_pro/io/param_schema.h"
+#include "pcr_pro/io/text_escape.h"
+#include "io/yaml_fields.h"
 
 namespace pcr_pro {
 namespace config_detail {
 
-// Reads the keys of one YAML block into an options struct, tracking the dotted key path for
-// error messages, rejecting duplicate keys (yaml-cpp would silently keep the first) and keys the
-// block does not know. Errors read "<origin>: <key>: <what> (line N)".
+// One YAML block bound into an options struct through the one field reader (yaml_fields.h):
+// tracks the dotted key path for messages, rejects duplicate keys when it is made (yaml-cpp would
+// silently keep the first) and the keys the block does not know, reads each key with the reader's
+// typed primitives (type, finite, range, fit). Errors read "<origin>: <key>: <what> (line N)".
 class Block {
  public:
+  /// kOptional: an absent key keeps its default, an absent or null block is empty (configurations);
+  /// kRequired: every key read must be there and the block must be a map (documents: a bundle's camera).
+  enum class Keys { kOptional, kRequired };
+
   Block(const YAML::Node& node, std::string path, std::string origin)
-      : node_(node), path_(std::move(path)), origin_(std::move(origin)) {
-    if (!node_ || node_.IsNull()) return;
-    if (!node_.IsMap()) fail(path_, "must be a map", node_);
-    std::map<std::string, int> lines;
-    for (const auto& kv : node_) {
-      const std::string key = kv.first.as<std::string>();
-      const int line = kv.first.Mark().line + 1;
-      const auto seen = lines.emplace(key, line);
-      if (!seen.second) {
-        throw InputError(origin_ + ": " + keyPath(key) + ": duplicate key (lines " + std::to_string(seen.first->second) +
-                         " and " + std::to_string(line) + ")");
-      }
-    }
+      : Block(yaml_detail::FieldReader(std::move(origin)), node, std::move(path)) {}
+  Block(yaml_detail::FieldReader reader, const YAML::Node& node, std::string path, Keys keys = Keys::kOptional)
+      : reader_(std::move(reader)), keys_(keys) {
+    fields_.path = std::move(path);
+    fields_.node = node;
+    if (keys_ == Keys::kRequired || (node && !node.IsNull())) fields_ = reader_.fields(node, fields_.path);
   }
 
   // Key path of a child for messages: "a.b", or "b" at the top level.
-  std::string keyPath(const std::string& key) const { return path_.empty() ? key : path_ + "." + key; }
+  std::string keyPath(const std::string& key) const { return yaml_detail::childKey(fields_.path, key); }
 
+  /// Reads key into *value (absent: kept, or "missing" when required); numbers must be in range.
   template <typename T>
-  void get(const std::string& key, T* value) {
-    known_.insert(key);
-    if (!node_ || node_.IsNull()) return;
-    const YAML::Node v = node_[key];
-    if (!v) return;
-    try {
-      *value = v.as<T>();
-    } catch (const YAML::Exception&) {
-      fail(keyPath(key), "has the wrong type", v);
-    }
+  void get(const std::string& key, T* value, const ParamRange& range = ParamRange::any()) {
+    const YAML::Node* v = find(key);
+    if (v != nullptr) read(*v, keyPath(key), range, value);
   }
 
+  /// @return the value of key (undefined when absent; "missing" when required), marked as known
   YAML::Node child(const std::string& key) {
-    known_.insert(key);
-    if (!node_ || node_.IsNull()) return YAML::Node();
-    return node_[key];
+    const YAML::Node* v = find(key);
+    return v != nullptr ? *v : YAML::Node(YAML::NodeType::Undefined);
   }
 
-  void finish() const {
-    if (!node_ || node_.IsNull()) return;
-    for (const auto& kv : node_) {
-      const std::string key = kv.first.as<std::string>();
-      if (!known_.count(key)) fail(keyPath(key), "unknown key", kv.first);
-    }
-  }
+  /// Refuses, now, every key not in keys (the message lists them).
+  void allowOnly(const std::vector<std::string>& keys) const { reader_.rejectUnknown(fields_, keys); }
+
+  /// Refuses the first key that no get() or child() asked for.
+  void finish() const { reader_.rejectUnknown(fields_, known_); }
 
   [[noreturn]] void fail(const std::string& key, const std::string& what) const {
-    throw InputError(origin_ + ": " + key + ": " + what);
+    reader_.fail(key, YAML::Node(), what);
   }
   [[noreturn]] void fail(const std::string& key, const std::string& what, const YAML::Node& at) const {
-    throw InputError(origin_ + ": " + key + ": " + what + lineOf(at));
+    reader_.fail(key, at, what);
   }
 
-  // " (line N)" of a node read from text, "" for a node built in memory.
-  static std::string lineOf(const YAML::Node& at) {
-    if (!at) return "";
-    const YAML::Mark mark = at.Mark();
-    return mark.is_null() ? "" : " (line " + std::to_string(mark.line + 1) + ")";
-  }
-
-  const std::string& path() const { return path_; }
-  const std::string& origin() const { return origin_; }
+  /// The block's entries (empty for an absent optional block).
+  const yaml_detail::Fields& fields() const { return fields_; }
+  const std::string& path() const { return fields_.path; }
+  const std::string& origin() const { return reader_.origin(); }
+  const yaml_detail::FieldReader& reader() const { return reader_; }
 
  private:
-  YAML::Node node_;
-  std::string path_;
-  std::string origin_;
-  std::set<std::string> known_;
+  const YAML::Node* find(const std::string& key) {
+    if (std::find(known_.begin(), known_.end(), key) == known_.end()) known_.push_back(key);
+    const YAML::Node* v = fields_.find(key);
+    if (v == nullptr && keys_ == Keys::kRequired) reader_.require(fields_, key);
+    return v;
+  }
+
+  void read(const YAML::Node& v, const std::string& field, const ParamRange&, bool* out) const {
+    *out = reader_.boolean(v, field);
+  }
+  void read(const YAML::Node& v, const std::string& field, const ParamRange&, std::string* out) const {
+    *out = reader_.text(v, field, true);
+  }
+  void read(const YAML::Node& v, const std::string& field, const ParamRange& range, double* out) const {
+    *out = reader_.number(v, field, range);
+  }
+  template <typename T, typename = std::enable_if_t<std::is_integral_v<T>>>
+  void read(const YAML::Node& v, const std::string& field, const ParamRange& range, T* out) const {
+    *out = reader_.integerOf<T>(v, field, range);
+  }
+
+  yaml_detail::FieldReader reader_;
+  yaml_detail::Fields fields_;
+  Keys keys_ = Keys::kOptional;
+  std::vector<std::string> known_;  // in the order asked, for the "allowed" list
 };
 
 // Reads one parameter of a schema from a block: the type, then the range (with the line).
@@ -103,17 +113,15 @@ class ParamBinder {
 
   template <typename T>
   void operator()(T O::*member) {
-    block_->get(key_, &(o_->*member));
-    if constexpr (std::is_arithmetic_v<T> && !std::is_same_v<T, bool>) {
-      if (!param_.range.contains(static_cast<double>(o_->*member))) {
-        block_->fail(block_->keyPath(key_), "must be " + param_.range.text(), block_->child(key_));
-      }
-    }
+    block_->get(key_, &(o_->*member), param_.range);
   }
   void operator()(const TextParam<O>& text) {
     std::string value = text.get(*o_);
     block_->get(key_, &value);
-    if (!text.set(o_, value)) block_->fail(block_->keyPath(key_), std::string("must be ") + text.choices, block_->child(key_));
+    if (!text.set(o_, value)) {
+      block_->fail(block_->keyPath(key_), std::string("must be ") + text.choices + ", got '" + printable(value) + "'",
+                   block_->child(key_));
+    }
   }
 
  private:
@@ -137,7 +145,7 @@ void bindParams(const ParamSchema<O>& schema, Block* block, O* o) {
       const std::string prefix = key.substr(0, dot);
       std::unique_ptr<Block>& sub = nested[prefix];
       if (!sub) {
-        sub = std::make_unique<Block>(block->child(prefix), block->keyPath(prefix), block->origin());
+        sub = std::make_unique<Block>(block->reader(), block->child(prefix), block->keyPath(prefix));
         order.push_back(prefix);
       }
       b = sub.get();
@@ -157,9 +165,6 @@ void validateIn(const T& options, const std::string& origin) {
     throw InputError(origin + ": " + e.what());
   }
 }
-
-/// Parses YAML text; @throw InputError "<origin>: invalid YAML at line N: ..."
-YAML::Node parseYaml(const std::string& text, const std::string& origin);
 
 /// Reads a whole text file; @throw InputError "<path>: cannot open configuration file"
 std::string readConfigFile(const std::string& path);
@@ -181,15 +186,15 @@ O loadStage(Block* top) {
 // load did not read. An empty document leaves everything at its defaults.
 template <typename Load>
 void loadTopLevel(const std::string& text, const std::string& origin, Load&& load) {
-  const YAML::Node root = parseYaml(text, origin);
+  const YAML::Node root = yaml_detail::parseYaml(text, origin);
   if (!root || root.IsNull()) return;
-  if (!root.IsMap()) throw InputError(origin + ": top level must be a map");
   try {
-    Block top(root, "", origin);
+    Block top(root, "", origin);  // not a map: "top level must be a map, got ..."
     load(&top);
     top.finish();
   } catch (const YAML::Exception& e) {
-    throw InputError(origin + ": malformed configuration: " + e.msg);
+    // Safety net: a yaml-cpp error the reader's checks did not catch still names the file.
+    throw InputError(yaml_detail::oneLine(origin + ": malformed configuration: " + e.msg));
   }
 }
 

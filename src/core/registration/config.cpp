@@ -6,9 +6,9 @@
 
 #include <filesystem>
 #include <fstream>
-#include <set>
 #include <sstream>
-#include <utility>
+
+#include "pcr_pro/io/text_escape.h"
 
 namespace pcr_pro {
 namespace config_detail {
@@ -21,32 +21,35 @@ void bindStep(FilterStep::Type type, Block* b, FilterStep* step, O FilterStep::*
   bindParams(paramSchema<O>(), b, &(step->*options));
 }
 
-FilterChainOptions loadFilters(const YAML::Node& node, const std::string& origin) {
+// The filter chain: a list of one-key maps, the key naming the filter type.
+FilterChainOptions loadFilters(Block* top) {
   FilterChainOptions chain;
+  const YAML::Node node = top->child("filters");
   if (!node || node.IsNull()) return chain;
-  if (!node.IsSequence()) throw InputError(origin + ": filters: must be a list of filter steps");
+  const yaml_detail::FieldReader& reader = top->reader();
+  reader.list(node, "filters", "filter steps");
   for (std::size_t i = 0; i < node.size(); ++i) {
-    const std::string where = "filters[" + std::to_string(i) + "]";
-    const YAML::Node item = node[i];
-    if (!item.IsMap() || item.size() != 1) {
-      throw InputError(origin + ": " + where + ": must be a map with one key (the filter type)");
+    const std::string where = yaml_detail::elementKey("filters", i);
+    if (!node[i].IsMap() || node[i].size() != 1) {
+      reader.fail(where, node[i], "must be a map with one key (the filter type), got " + yaml_detail::describe(node[i]));
     }
-    const std::string type = item.begin()->first.as<std::string>();
-    Block b(item.begin()->second, where + "." + type, origin);
+    const yaml_detail::Fields one_key = reader.fields(node[i], where);
+    const yaml_detail::Entry& entry = one_key.entries.front();
+    Block b(reader, entry.value, yaml_detail::childKey(where, entry.key));
     FilterStep step;
-    if (type == "crop") {
+    if (entry.key == "crop") {
       bindStep(FilterStep::Type::kCrop, &b, &step, &FilterStep::crop);
-    } else if (type == "voxel_grid") {
+    } else if (entry.key == "voxel_grid") {
       bindStep(FilterStep::Type::kVoxelGrid, &b, &step, &FilterStep::voxel_grid);
-    } else if (type == "outlier_removal") {
+    } else if (entry.key == "outlier_removal") {
       bindStep(FilterStep::Type::kOutlierRemoval, &b, &step, &FilterStep::outlier_removal);
-    } else if (type == "random_sampling") {
+    } else if (entry.key == "random_sampling") {
       bindStep(FilterStep::Type::kRandomSampling, &b, &step, &FilterStep::random_sampling);
-    } else if (type == "max_points") {
+    } else if (entry.key == "max_points") {
       bindStep(FilterStep::Type::kMaxPoints, &b, &step, &FilterStep::max_points);
     } else {
-      throw InputError(origin + ": " + where + ": unknown filter type '" + type +
-                       "' (crop, voxel_grid, outlier_removal, random_sampling, max_points)");
+      reader.fail(where, entry.key_node, "unknown filter type '" + printable(entry.key) +
+                                             "' (crop, voxel_grid, outlier_removal, random_sampling, max_points)");
     }
     b.finish();
     try {
@@ -54,7 +57,7 @@ FilterChainOptions loadFilters(const YAML::Node& node, const std::string& origin
       one.steps.push_back(step);
       validate(one);
     } catch (const InputError& e) {
-      throw InputError(origin + ": " + where + ": " + e.what());
+      throw InputError(reader.origin() + ": " + where + ": " + e.what());
     }
     chain.steps.push_back(step);
   }
@@ -62,14 +65,6 @@ FilterChainOptions loadFilters(const YAML::Node& node, const std::string& origin
 }
 
 }  // namespace
-
-YAML::Node parseYaml(const std::string& text, const std::string& origin) {
-  try {
-    return YAML::Load(text);
-  } catch (const YAML::Exception& e) {
-    throw InputError(origin + ": invalid YAML at line " + std::to_string(e.mark.line + 1) + ": " + e.msg);
-  }
-}
 
 std::string readConfigFile(const std::string& path) {
   // Only a regular file: a device or FIFO (--config /dev/zero) would never end.
@@ -86,9 +81,8 @@ std::string readConfigFile(const std::string& path) {
 }
 
 void loadRegistrationBlocks(Block* top, RegistrationOptions* o) {
-  const std::string& origin = top->origin();
   o->scale_detection = loadStage<ScaleDetectionOptions>(top);
-  o->filters = loadFilters(top->child("filters"), origin);
+  o->filters = loadFilters(top);
   o->icp = loadStage<IcpOptions>(top);
   o->covariance = loadStage<CovarianceOptions>(top);
 }

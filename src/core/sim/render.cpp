@@ -3,19 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <sstream>
 #include <vector>
 
 #include "sim/sim_random.h"
 
 namespace pcr_pro {
 namespace {
-
-std::string num(double v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
 
 // A quad in the camera frame with its projected outline (the polygon clipped at z = near).
 struct CameraQuad {
@@ -161,15 +154,19 @@ double sampleTexture(const Texture& tex, double a, double b, double lambda) {
 
 }  // namespace
 
-void validate(const RenderOptions& o) {
-  if (o.supersampling < 1 || o.supersampling > 4) {
-    throw InputError("render.supersampling: must be in [1, 4], got " + std::to_string(o.supersampling));
-  }
-  if (!(o.image_noise >= 0.0 && o.image_noise <= 50.0)) {
-    throw InputError("render.image_noise: must be in [0, 50], got " + num(o.image_noise));
-  }
-  if (!(o.near >= 0.001 && o.near <= 1.0)) throw InputError("render.near: must be in [0.001, 1], got " + num(o.near));
+template <>
+const ParamSchema<RenderOptions>& paramSchema<RenderOptions>() {
+  using O = RenderOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"render", {
+      {"supersampling", &O::supersampling, R::closed(1, 4), "", "samples per pixel side"},
+      {"image_noise", &O::image_noise, R::closed(0, 50), "grey levels", "Gaussian noise of every pixel"},
+      {"near", &O::near, R::closed(0.001, 1), "m", "surfaces closer to the camera are not drawn"},
+  }, ParamMessage::kNode};
+  return schema;
 }
+
+void validate(const RenderOptions& o) { checkRanges(paramSchema<RenderOptions>(), o); }
 
 RenderedView render(const World& world, const PinholeCamera& cam, const Sim3& camera_to_world,
                     const RenderOptions& options, std::uint64_t seed) {

@@ -5,19 +5,12 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
-#include <sstream>
 #include <vector>
 
 #include "sim/sim_random.h"
 
 namespace pcr_pro {
 namespace {
-
-std::string num(double v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
 
 using sim_detail::gaussian;
 using sim_detail::uniform01;
@@ -47,21 +40,22 @@ cv::Mat noiseField(cv::Size size, double sigma, std::uint64_t seed) {
 
 }  // namespace
 
-void validate(const SemiDenseOptions& o) {
-  auto fail = [](const std::string& key, const std::string& what, double v) {
-    throw InputError("semi_dense." + key + ": must be " + what + ", got " + num(v));
-  };
-  if (!(o.min_gradient > 0.0) || !std::isfinite(o.min_gradient)) fail("min_gradient", "> 0", o.min_gradient);
-  if (!(o.idepth_noise >= 0.0) || !std::isfinite(o.idepth_noise)) fail("idepth_noise", ">= 0", o.idepth_noise);
-  if (!(o.reference_gradient > 0.0) || !std::isfinite(o.reference_gradient)) {
-    fail("reference_gradient", "> 0", o.reference_gradient);
-  }
-  if (!(o.outlier_fraction >= 0.0 && o.outlier_fraction <= 0.5)) fail("outlier_fraction", "in [0, 0.5]", o.outlier_fraction);
-  if (o.subsample < 1) fail("subsample", ">= 1", o.subsample);
-  if (!(o.noise_correlation >= 0.0 && o.noise_correlation <= 10.0)) {
-    fail("noise_correlation", "in [0, 10]", o.noise_correlation);
-  }
+template <>
+const ParamSchema<SemiDenseOptions>& paramSchema<SemiDenseOptions>() {
+  using O = SemiDenseOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"semi_dense", {
+      {"min_gradient", &O::min_gradient, R::above(0), "grey levels / px", "a pixel with less gradient is left out"},
+      {"idepth_noise", &O::idepth_noise, R::atLeast(0), "-", "inverse-depth noise at reference_gradient"},
+      {"reference_gradient", &O::reference_gradient, R::above(0), "grey levels / px", "gradient of idepth_noise"},
+      {"outlier_fraction", &O::outlier_fraction, R::closed(0, 0.5), "-", "fraction of wrong inverse depths"},
+      {"subsample", &O::subsample, R::atLeast(1), "", "keep one gradient pixel in this many"},
+      {"noise_correlation", &O::noise_correlation, R::closed(0, 10), "px", "spatial correlation of the noise"},
+  }, ParamMessage::kNode};
+  return schema;
 }
+
+void validate(const SemiDenseOptions& o) { checkRanges(paramSchema<SemiDenseOptions>(), o); }
 
 SemiDenseKeyframe sampleSemiDense(const cv::Mat& grey, const cv::Mat& depth, const PinholeCamera& camera,
                                   const SemiDenseOptions& options, std::uint64_t seed) {

@@ -8,6 +8,8 @@
 #include <sstream>
 
 #include "io/yaml_block.h"
+#include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/text_escape.h"
 #include "pcr_pro/sim/simulator.h"
 
 namespace pcr_pro {
@@ -24,9 +26,11 @@ void range(const std::string& key, double v, double lo, double hi) {
 
 }  // namespace
 
-// The simulator's schemas stay private to this file: nothing else binds or prints them. The ranges
-// that depend on other values (camera_height, target_height) and those of world, render and
-// semi_dense are checked by their validate().
+// The simulator's own schemas stay private to this file: nothing else binds or prints them. The
+// ranges that depend on other values (camera_height, target_height) are checked by validate().
+// The camera block binds through the bundle's camera schema (bundle.h); world, world.texture,
+// render and map.semi_dense through the schemas beside their validate() (world.h, render.h,
+// semi_dense.h).
 template <>
 const ParamSchema<SimulatorOptions>& paramSchema<SimulatorOptions>() {
   using O = SimulatorOptions;
@@ -35,63 +39,6 @@ const ParamSchema<SimulatorOptions>& paramSchema<SimulatorOptions>() {
       {"agents", &O::agents, ParamRange::closed(1, 26), "", "number of agents"},
       {"min_overlap", &O::min_overlap, ParamRange::closed(0, 1), "-",
        "pairs whose overlap is below this count as not overlapping in the truth"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
-template <>
-const ParamSchema<PinholeCamera>& paramSchema<PinholeCamera>() {
-  using O = PinholeCamera;
-  static const ParamSchema<O> schema{"camera", {
-      {"fx", &O::fx, ParamRange::any(), "px", "focal length along x"},
-      {"fy", &O::fy, ParamRange::any(), "px", "focal length along y"},
-      {"cx", &O::cx, ParamRange::any(), "px", "principal point x"},
-      {"cy", &O::cy, ParamRange::any(), "px", "principal point y"},
-      {"width", &O::width, ParamRange::any(), "px", "image width"},
-      {"height", &O::height, ParamRange::any(), "px", "image height"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
-template <>
-const ParamSchema<WorldOptions>& paramSchema<WorldOptions>() {
-  using O = WorldOptions;
-  static const ParamSchema<O> schema{"world", {
-      {"room_length", &O::room_length, ParamRange::any(), "m", "interior extent along x"},
-      {"room_width", &O::room_width, ParamRange::any(), "m", "interior extent along y"},
-      {"room_height", &O::room_height, ParamRange::any(), "m", "interior height"},
-      {"boxes", &O::boxes, ParamRange::any(), "", "number of furniture-like boxes"},
-      {"max_box_depth", &O::max_box_depth, ParamRange::any(), "m", "depth of a box against a wall"},
-      {"max_wall_box_height", &O::max_wall_box_height, ParamRange::any(), "m", "height of a box against a wall"},
-      {"max_free_box_height", &O::max_free_box_height, ParamRange::any(), "m", "height of a free-standing box"},
-      {"free_box_wall_distance", &O::free_box_wall_distance, ParamRange::any(), "m",
-       "smallest distance of a free-standing box from the walls"},
-      {"ambient", &O::ambient, ParamRange::any(), "-", "ambient share of the lighting"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
-template <>
-const ParamSchema<TextureOptions>& paramSchema<TextureOptions>() {
-  using O = TextureOptions;
-  static const ParamSchema<O> schema{"world.texture", {
-      {"texel", &O::texel, ParamRange::any(), "m", "texel size"},
-      {"min_shape_size", &O::min_shape_size, ParamRange::any(), "m", "smallest shape drawn"},
-      {"max_shape_size", &O::max_shape_size, ParamRange::any(), "m", "largest shape drawn"},
-      {"coverage", &O::coverage, ParamRange::any(), "-", "fraction of a face the largest shapes cover"},
-      {"detail_decay", &O::detail_decay, ParamRange::any(), "-", "coverage ratio of one size octave to the next"},
-      {"blur", &O::blur, ParamRange::any(), "texels", "Gaussian blur of the drawn texture"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
-template <>
-const ParamSchema<RenderOptions>& paramSchema<RenderOptions>() {
-  using O = RenderOptions;
-  static const ParamSchema<O> schema{"render", {
-      {"supersampling", &O::supersampling, ParamRange::any(), "", "samples per pixel side"},
-      {"image_noise", &O::image_noise, ParamRange::any(), "grey levels", "Gaussian noise of every pixel"},
-      {"near", &O::near, ParamRange::any(), "m", "surfaces closer to the camera are not drawn"},
   }, ParamMessage::kNode};
   return schema;
 }
@@ -163,20 +110,6 @@ const ParamSchema<MapOutputOptions>& paramSchema<MapOutputOptions>() {
   return schema;
 }
 
-template <>
-const ParamSchema<SemiDenseOptions>& paramSchema<SemiDenseOptions>() {
-  using O = SemiDenseOptions;
-  static const ParamSchema<O> schema{"map.semi_dense", {
-      {"min_gradient", &O::min_gradient, ParamRange::any(), "grey levels / px", "a pixel with less gradient is left out"},
-      {"idepth_noise", &O::idepth_noise, ParamRange::any(), "-", "inverse-depth noise at reference_gradient"},
-      {"reference_gradient", &O::reference_gradient, ParamRange::any(), "grey levels / px", "gradient of idepth_noise"},
-      {"outlier_fraction", &O::outlier_fraction, ParamRange::any(), "-", "fraction of wrong inverse depths"},
-      {"subsample", &O::subsample, ParamRange::any(), "", "keep one gradient pixel in this many"},
-      {"noise_correlation", &O::noise_correlation, ParamRange::any(), "px", "spatial correlation of the noise"},
-  }, ParamMessage::kNode};
-  return schema;
-}
-
 namespace {
 
 // The ranges of the trajectory that depend on the world (the others are the schema's).
@@ -197,7 +130,7 @@ void validateAgent(const AgentOptions& a, std::size_t i) {
   if (!a.name.empty()) {
     for (char c : a.name) {
       if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_')) {
-        throw InputError(f + "name: only letters, digits and '_' (it names a directory and ROS topics), got '" + a.name + "'");
+        throw InputError(f + "name: only letters, digits and '_' (it names a directory and ROS topics), got '" + printable(a.name) + "'");
       }
     }
   }
@@ -209,16 +142,14 @@ void validateAgent(const AgentOptions& a, std::size_t i) {
 }
 
 void optionalDouble(Block* b, const std::string& key, std::optional<double>* v) {
-  if (!b->child(key)) return;  // child() marks the key as known
-  double x = 0.0;
-  b->get(key, &x);
-  *v = x;
+  const YAML::Node value = b->child(key);  // marks the key as known
+  if (value) *v = b->reader().number(value, b->keyPath(key));
 }
 
 // Binds the block `key` of parent through O's schema; nested(block) binds its sub-blocks.
 template <typename O, typename Nested>
 void bindBlock(Block* parent, const std::string& key, O* o, Nested&& nested) {
-  Block b(parent->child(key), parent->keyPath(key), parent->origin());
+  Block b(parent->reader(), parent->child(key), parent->keyPath(key));
   config_detail::bindParams(paramSchema<O>(), &b, o);
   nested(&b);
   b.finish();
@@ -229,11 +160,12 @@ void bindBlock(Block* parent, const std::string& key, O* o) {
   bindBlock(parent, key, o, [](Block*) {});
 }
 
-void loadAgents(const YAML::Node& node, const std::string& origin, std::vector<AgentOptions>* agents) {
+void loadAgents(Block* top, std::vector<AgentOptions>* agents) {
+  const YAML::Node node = top->child("per_agent");
   if (!node || node.IsNull()) return;
-  if (!node.IsSequence()) throw InputError(origin + ": per_agent: must be a list");
+  top->reader().list(node, "per_agent", "agents");
   for (std::size_t i = 0; i < node.size(); ++i) {
-    Block b(node[i], "per_agent[" + std::to_string(i) + "]", origin);
+    Block b(top->reader(), node[i], yaml_detail::elementKey("per_agent", i));
     AgentOptions a;
     b.get("name", &a.name);
     optionalDouble(&b, "scale", &a.scale);
@@ -300,7 +232,7 @@ SimulatorOptions parseSimulatorConfig(const std::string& text, const std::string
     bindBlock(top, "layout", &o.layout);
     bindBlock(top, "drift", &o.drift);
     bindBlock(top, "map", &o.map, [&o](Block* map) { bindBlock(map, "semi_dense", &o.map.semi_dense); });
-    loadAgents(top->child("per_agent"), top->origin(), &o.per_agent);
+    loadAgents(top, &o.per_agent);
   });
   config_detail::validateIn(o, origin);
   return o;

@@ -17,16 +17,21 @@ using sim_detail::uniform;
 using sim_detail::uniform01;
 using sim_detail::uniformInt;
 
-std::string num(double v) {
+std::string num(double v) { return schema_detail::numberText(v); }
+
+// A bound computed from other fields, to 6 digits (2.7, not the sum's 2.6999999999999997).
+std::string bound(double v) {
   std::ostringstream s;
   s << v;
   return s.str();
 }
 
-void checkRange(const std::string& key, double v, double lo, double hi) {
-  if (!(v >= lo && v <= hi)) {
-    throw InputError("world." + key + ": must be in [" + num(lo) + ", " + num(hi) + "], got " + num(v));
-  }
+// A range that depends on another field ("<limit>" names it): the schemas hold the fixed ones.
+void checkAtLeast(const std::string& key, double v, double lo, const std::string& limit) {
+  if (!(v >= lo)) throw InputError("world." + key + ": must be >= " + limit + " = " + bound(lo) + ", got " + num(v));
+}
+void checkAtMost(const std::string& key, double v, double hi, const std::string& limit) {
+  if (!(v <= hi)) throw InputError("world." + key + ": must be <= " + limit + " = " + bound(hi) + ", got " + num(v));
 }
 
 // Fixed-point shift of OpenCV's drawing functions: 4 bits of sub-texel position.
@@ -190,22 +195,50 @@ bool randomBox(const WorldOptions& o, std::mt19937_64& rng, WorldBox* box) {
 
 }  // namespace
 
+template <>
+const ParamSchema<WorldOptions>& paramSchema<WorldOptions>() {
+  using O = WorldOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"world", {
+      {"room_length", &O::room_length, R::closed(2, 100), "m", "interior extent along x"},
+      {"room_width", &O::room_width, R::closed(2, 100), "m", "interior extent along y"},
+      {"room_height", &O::room_height, R::closed(2, 20), "m", "interior height"},
+      {"boxes", &O::boxes, R::closed(0, 100), "", "number of furniture-like boxes"},
+      {"max_box_depth", &O::max_box_depth, R::closed(0.25, 2), "m", "depth of a box against a wall"},
+      {"max_wall_box_height", &O::max_wall_box_height, R::atLeast(0.4), "m",
+       "height of a box against a wall (also <= room_height - 0.1)"},
+      {"max_free_box_height", &O::max_free_box_height, R::atLeast(0.35), "m",
+       "height of a free-standing box (also <= room_height - 0.1)"},
+      {"free_box_wall_distance", &O::free_box_wall_distance, R::closed(0, 50), "m",
+       "smallest distance of a free-standing box from the walls"},
+      {"ambient", &O::ambient, R::closed(0, 1), "-", "ambient share of the lighting"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
+template <>
+const ParamSchema<TextureOptions>& paramSchema<TextureOptions>() {
+  using O = TextureOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"world.texture", {
+      {"texel", &O::texel, R::closed(0.001, 0.05), "m", "texel size"},
+      {"min_shape_size", &O::min_shape_size, R::openClosed(0, 10), "m", "smallest shape drawn (also >= 2 texel)"},
+      {"max_shape_size", &O::max_shape_size, R::openClosed(0, 10), "m", "largest shape drawn (also >= min_shape_size)"},
+      {"coverage", &O::coverage, R::closed(1e-3, 5), "-", "fraction of a face the largest shapes cover"},
+      {"detail_decay", &O::detail_decay, R::closed(1e-3, 1), "-", "coverage ratio of one size octave to the next"},
+      {"blur", &O::blur, R::closed(0, 5), "texels", "Gaussian blur of the drawn texture"},
+  }, ParamMessage::kNode};
+  return schema;
+}
+
 void validate(const WorldOptions& o) {
-  checkRange("room_length", o.room_length, 2.0, 100.0);
-  checkRange("room_width", o.room_width, 2.0, 100.0);
-  checkRange("room_height", o.room_height, 2.0, 20.0);
-  checkRange("boxes", o.boxes, 0, 100);
-  checkRange("max_box_depth", o.max_box_depth, 0.25, 2.0);
-  checkRange("max_wall_box_height", o.max_wall_box_height, 0.4, o.room_height - 0.1);
-  checkRange("max_free_box_height", o.max_free_box_height, 0.35, o.room_height - 0.1);
-  checkRange("free_box_wall_distance", o.free_box_wall_distance, 0.0, 50.0);
-  checkRange("ambient", o.ambient, 0.0, 1.0);
-  checkRange("texture.texel", o.texture.texel, 0.001, 0.05);
-  checkRange("texture.min_shape_size", o.texture.min_shape_size, 2.0 * o.texture.texel, 10.0);
-  checkRange("texture.max_shape_size", o.texture.max_shape_size, o.texture.min_shape_size, 10.0);
-  checkRange("texture.coverage", o.texture.coverage, 1e-3, 5.0);
-  checkRange("texture.detail_decay", o.texture.detail_decay, 1e-3, 1.0);
-  checkRange("texture.blur", o.texture.blur, 0.0, 5.0);
+  checkRanges(paramSchema<WorldOptions>(), o);
+  checkRanges(paramSchema<TextureOptions>(), o.texture);
+  // The boxes stay 10 cm below the ceiling; a shape spans at least two texels.
+  checkAtMost("max_wall_box_height", o.max_wall_box_height, o.room_height - 0.1, "room_height - 0.1");
+  checkAtMost("max_free_box_height", o.max_free_box_height, o.room_height - 0.1, "room_height - 0.1");
+  checkAtLeast("texture.min_shape_size", o.texture.min_shape_size, 2.0 * o.texture.texel, "2 texture.texel");
+  checkAtLeast("texture.max_shape_size", o.texture.max_shape_size, o.texture.min_shape_size, "texture.min_shape_size");
   // A texture beyond 2^28 texels (e.g. a 100 m room with 1 mm texels) would not fit in memory.
   const double side = std::max({o.room_length, o.room_width, o.room_height});
   if (side * side / (o.texture.texel * o.texture.texel) > 268435456.0) {
