@@ -226,6 +226,11 @@ void writeReport(const Options& o, const std::vector<Call>& calls, const std::st
      << fmt("%.0f", s.pipeline_ms) << " + publish " << fmt("%.0f", s.publish_ms) << "; SIFT computed for " << s.computed
      << " keyframes over the warm calls). Floor (issue 13) < " << fmt("%.0f", kFloorMs) << " ms: **" << verdict
      << "**.\n";
+  // What the pipeline said, e.g. whether the ICP refinement was kept: the reader of the times needs it.
+  for (const Call* c : {&calls[0], &calls[1], &calls.back()}) {
+    md << "\nThe node's message on the " << c->label << " call (" << c->source << " → " << c->target << "): "
+       << (c->answered ? c->response.message : std::string("no answer")) << "\n";
+  }
   std::ofstream headline(o.headline);
   headline << "- **Warm merge through the node** (real LSD-SLAM bags, " << keyframes << " keyframes, `merge_node` via roslaunch, "
            << "`~merge` b → a with features cached, median of " << s.warm << ", client round trip): **"
