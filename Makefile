@@ -2,7 +2,8 @@
 #   make demo   install missing Debian packages, build, run the main job on shipped data
 #   make test   install missing Debian packages, build, run all tests (ctest)
 #   make build  configure (once) and build only
-#   make bench  build and run the benchmarks, regenerate docs/BENCHMARKS.md (BENCH_ARGS=--quick for a short run)
+#   make bench  build and run the benchmarks, regenerate docs/BENCHMARKS.md (BENCH_ARGS=--quick for a short run,
+#               BENCH_ARGS=--node for the node section alone: the real LSD-SLAM bags merged through merge_node)
 #   The real two-agent cases are built with the build, from PCR_PRO_DATA_DIR (docs/FORMATS.md).
 # Debian's /usr/bin comes first on PATH: a pyenv python3 would break catkin.
 SHELL := /bin/bash

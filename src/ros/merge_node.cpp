@@ -2,6 +2,8 @@
 #include "pcr_pro/ros/merge_node.h"
 
 #include <algorithm>
+#include <chrono>
+#include <cstdio>
 #include <future>
 #include <sstream>
 #include <tuple>
@@ -37,6 +39,12 @@ Response answer(std::uint8_t code, const std::string& name, const std::string& m
   r.status_name = name;
   r.message = message;
   return r;
+}
+
+using Clock = std::chrono::steady_clock;
+
+double msSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
 std::string joinIds(const std::vector<long>& ids) {
@@ -492,66 +500,86 @@ void MergeNode::forgetFeatures(const Agent& agent, long replaced_id, bool replac
 }
 
 Response MergeNode::merge(const MergeJob& job) {
+  const Clock::time_point start = Clock::now();
   Agent* target = findAgent(job.target);
   Agent* source = findAgent(job.source);
-  Response response;
   if (!target || !source) {
     std::ostringstream known;
     for (const AgentOptions& a : options_.agents) known << " " << a.name;
-    response = answer(Response::UNKNOWN_AGENT, "UNKNOWN_AGENT",
-                      "unknown agent '" + (target ? job.source : job.target) + "' (agents:" + known.str() + ")");
-  } else if (target == source) {
-    response = answer(Response::UNKNOWN_AGENT, "UNKNOWN_AGENT", "source and target are the same agent '" + job.source + "'");
-  } else {
-    const Snapshot s = takeSnapshot(source), t = takeSnapshot(target);
-    CloudCap source_cap, target_cap;
-    const AgentMap source_map = s.store.toAgentMap(options_.lsd, &source_cap);
-    const AgentMap target_map = t.store.toAgentMap(options_.lsd, &target_cap);
-    for (const auto& [agent, cap] : {std::pair{source, &source_cap}, std::pair{target, &target_cap}}) {
-      std::lock_guard<std::mutex> lock(agent->mutex);
-      noteCloudCap(agent, agent->options.name + ": LSD-SLAM map cloud", *cap);
-    }
-    const std::optional<Response> refused = checkData(job, s, source_map, t, target_map);
-    if (job.target == options_.autoMergeTarget() && (!refused || job.trigger == "auto")) {
-      std::lock_guard<std::mutex> lock(auto_mutex_);
-      schedule_->attempted(job.source, s.progress, t.progress);
-    }
-    if (refused) {
-      response = *refused;
-    } else {
-      ROS_INFO("merging %s (%zu keyframes, %ld points) into %s (%zu keyframes, %ld points), %s", job.source.c_str(),
-               source_map.keyframes.size(), static_cast<long>(source_map.cloud.cols()), job.target.c_str(),
-               target_map.keyframes.size(), static_cast<long>(target_map.cloud.cols()), job.trigger.c_str());
-      MergeResult result;
-      try {
-        result = runPipeline(source_map, job.source, target_map, job.target, job.keyframes);
-      } catch (const std::exception& e) {
-        result.report.status = Status::kInvalidInput;
-        result.report.message = e.what();
-      }
-      // The pipeline cached the features of the snapshot's keyframes; those that left the map
-      // while it ran were invalidated before they were stored: forget them now, or the cache
-      // grows with every merge of a streaming agent (the soak test's resident memory).
-      for (const Snapshot* snapshot : {&s, &t}) {
-        std::lock_guard<std::mutex> lock(snapshot->agent->mutex);
-        const std::vector<long> now = snapshot->agent->store.keyframeIds();
-        std::vector<long> left;
-        for (long id : snapshot->store.keyframeIds()) {
-          if (std::find(now.begin(), now.end(), id) == now.end()) left.push_back(id);
-        }
-        forgetFeatures(*snapshot->agent, 0, false, left);
-      }
-      const RegistrationReport& r = result.report;
-      response = answer(statusCode(r.status), statusName(r.status), r.message);
-      if (r.status == Status::kOk && r.transform && r.covariance) {
-        publishMerge(job, s, source_map, t, target_map, r, r.message, &response.edge);
-        if (!options_.g2o_file.empty()) writePoseGraph(job, source_map, target_map, result);
-      } else if (r.status == Status::kOk) {
-        response = answer(Response::INVALID_INPUT, "INVALID_INPUT", "the pipeline said OK without an edge: " + r.message);
-      }
-    }
+    const Response response = answer(Response::UNKNOWN_AGENT, "UNKNOWN_AGENT",
+                                      "unknown agent '" + (target ? job.source : job.target) + "' (agents:" +
+                                          known.str() + ")");
+    noteOutcome(job, response);
+    return response;
   }
-  noteOutcome(job, response);
+  if (target == source) {
+    const Response response =
+        answer(Response::UNKNOWN_AGENT, "UNKNOWN_AGENT", "source and target are the same agent '" + job.source + "'");
+    noteOutcome(job, response);
+    return response;
+  }
+  const Snapshot s = takeSnapshot(source), t = takeSnapshot(target);
+  CloudCap source_cap, target_cap;
+  const AgentMap source_map = s.store.toAgentMap(options_.lsd, &source_cap);
+  const AgentMap target_map = t.store.toAgentMap(options_.lsd, &target_cap);
+  for (const auto& [agent, cap] : {std::pair{source, &source_cap}, std::pair{target, &target_cap}}) {
+    std::lock_guard<std::mutex> lock(agent->mutex);
+    noteCloudCap(agent, agent->options.name + ": LSD-SLAM map cloud", *cap);
+  }
+  const std::optional<Response> refused = checkData(job, s, source_map, t, target_map);
+  if (job.target == options_.autoMergeTarget() && (!refused || job.trigger == "auto")) {
+    std::lock_guard<std::mutex> lock(auto_mutex_);
+    schedule_->attempted(job.source, s.progress, t.progress);
+  }
+  if (refused) {
+    noteOutcome(job, *refused);
+    return *refused;
+  }
+  MergeTiming timing;
+  timing.maps_ms = msSince(start);
+  const Response response = mergeMaps(job, s, source_map, t, target_map, &timing);
+  timing.total_ms = msSince(start);
+  noteOutcome(job, response, timing);
+  return response;
+}
+
+Response MergeNode::mergeMaps(const MergeJob& job, const Snapshot& s, const AgentMap& source_map, const Snapshot& t,
+                              const AgentMap& target_map, MergeTiming* timing) {
+  ROS_INFO("merging %s (%zu keyframes, %ld points) into %s (%zu keyframes, %ld points), %s", job.source.c_str(),
+           source_map.keyframes.size(), static_cast<long>(source_map.cloud.cols()), job.target.c_str(),
+           target_map.keyframes.size(), static_cast<long>(target_map.cloud.cols()), job.trigger.c_str());
+  MergeResult result;
+  try {
+    result = runPipeline(source_map, job.source, target_map, job.target, job.keyframes);
+  } catch (const std::exception& e) {
+    result.report.status = Status::kInvalidInput;
+    result.report.message = e.what();
+  }
+  timing->stages = result.report.timings;
+  timing->features_computed = result.diagnostics.features_computed;
+  timing->features_cached = result.diagnostics.features_cached;
+  // The pipeline cached the features of the snapshot's keyframes; those that left the map
+  // while it ran were invalidated before they were stored: forget them now, or the cache
+  // grows with every merge of a streaming agent (the soak test's resident memory).
+  for (const Snapshot* snapshot : {&s, &t}) {
+    std::lock_guard<std::mutex> lock(snapshot->agent->mutex);
+    const std::vector<long> now = snapshot->agent->store.keyframeIds();
+    std::vector<long> left;
+    for (long id : snapshot->store.keyframeIds()) {
+      if (std::find(now.begin(), now.end(), id) == now.end()) left.push_back(id);
+    }
+    forgetFeatures(*snapshot->agent, 0, false, left);
+  }
+  const RegistrationReport& r = result.report;
+  Response response = answer(statusCode(r.status), statusName(r.status), r.message);
+  if (r.status == Status::kOk && r.transform && r.covariance) {
+    const Clock::time_point published = Clock::now();
+    publishMerge(job, s, source_map, t, target_map, r, r.message, &response.edge);
+    if (!options_.g2o_file.empty()) writePoseGraph(job, source_map, target_map, result);
+    timing->publish_ms = msSince(published);
+  } else if (r.status == Status::kOk) {
+    response = answer(Response::INVALID_INPUT, "INVALID_INPUT", "the pipeline said OK without an edge: " + r.message);
+  }
   return response;
 }
 
@@ -628,7 +656,7 @@ void MergeNode::recordHistory(const MergeJob& job, const pcr_pro::MapEdge& edge,
   history_pub_.publish(history);
 }
 
-void MergeNode::noteOutcome(const MergeJob& job, const Response& response) {
+void MergeNode::noteOutcome(const MergeJob& job, const Response& response, const std::optional<MergeTiming>& timing) {
   if (response.status != Response::OK) {
     ROS_INFO("merge %s -> %s (%s): %s: %s%s", job.source.c_str(), job.target.c_str(), job.trigger.c_str(),
              response.status_name.c_str(), response.message.c_str(),
@@ -642,6 +670,7 @@ void MergeNode::noteOutcome(const MergeJob& job, const Response& response) {
   merge_state_.trigger = job.trigger;
   (response.status == Response::OK ? merge_state_.merges_ok : merge_state_.merges_failed)++;
   if (job.trigger == "auto") ++merge_state_.merges_auto;
+  if (timing) merge_state_.timing = timing;
 }
 
 // --- diagnostics ------------------------------------------------------------------------------
@@ -683,6 +712,20 @@ void MergeNode::mergeDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& s)
   s.add("merges_failed", merge_state_.merges_failed);
   s.add("merges_auto", merge_state_.merges_auto);
   s.add("auto_merge", options_.auto_merge.enabled ? "into " + options_.autoMergeTarget() : std::string("off"));
+  if (const std::optional<MergeTiming>& t = merge_state_.timing) {
+    // Where the last merge that ran the pipeline spent its wall time on the worker [ms].
+    char stages[200];
+    std::snprintf(stages, sizeof(stages), "features %.0f, relative_pose %.0f, scale %.0f, filters %.0f, icp %.0f, "
+                  "covariance %.0f", t->stages.features, t->stages.relative_pose, t->stages.scale, t->stages.filters,
+                  t->stages.icp, t->stages.covariance);
+    s.addf("last_merge_ms", "%.1f", t->total_ms);
+    s.addf("last_maps_ms", "%.1f", t->maps_ms);
+    s.addf("last_pipeline_ms", "%.1f", t->stages.total);
+    s.add("last_stages_ms", stages);
+    s.addf("last_publish_ms", "%.1f", t->publish_ms);
+    s.add("last_features_computed", t->features_computed);
+    s.add("last_features_cached", t->features_cached);
+  }
   std::lock_guard<std::mutex> history_lock(history_mutex_);
   s.add("history_edges", history_.size());
 }

@@ -30,6 +30,7 @@
 #include "pcr_pro/EdgeHistory.h"
 #include "common/data_dir.h"
 #include "common/diagnostics_watcher.h"
+#include "common/lsd_bag_stream.h"
 #include "common/ros_test_main.h"
 #include "common/sim_worlds.h"
 #include "pcr_pro/GetEdges.h"
@@ -200,15 +201,7 @@ Response callMerge(const std::string& source = "", const std::string& target = "
   return callMerge(mergeRequest(source, target, source_kf, target_kf));
 }
 
-// Waits until `pub` has a subscriber (the node), so that nothing published is lost.
-bool waitForSubscriber(const ros::Publisher& pub, double seconds = 20.0) {
-  const ros::WallTime end = ros::WallTime::now() + ros::WallDuration(seconds);
-  while (ros::ok() && ros::WallTime::now() < end) {
-    if (pub.getNumSubscribers() > 0) return true;
-    ros::WallDuration(0.05).sleep();
-  }
-  return false;
-}
+using test::waitForSubscriber;
 
 // A diagnostics value as a number (-1 while unknown).
 long number(DiagnosticsWatcher& d, const std::string& task, const std::string& key) {
@@ -216,44 +209,11 @@ long number(DiagnosticsWatcher& d, const std::string& task, const std::string& k
   return v.empty() ? -1 : std::stol(v);
 }
 
-// Publishes every message of an LSD-SLAM bag on its topic in the bag's order, each once the node has
-// taken the one before (its messages_received), so that none is lost or overtaken on the way:
-// `rosbag play` into a loaded machine once lost a 3.7 MB keyframe and once delivered a graph before
-// the keyframe it moves (two topics are two connections). @return the messages per agent.
-// `root_agent`: for a bag recorded in the root namespace as LSD-SLAM publishes (/lsd_slam/...), the
-// agent whose namespace its messages go to.
-std::map<std::string, int> streamLsdBag(const std::string& file, DiagnosticsWatcher& diagnostics,
-                                        const std::string& root_agent = "") {
-  ros::NodeHandle nh;
-  std::map<std::string, ros::Publisher> publishers;
-  std::map<std::string, long> received;
-  for (const std::string agent : {"agent_a", "agent_b"}) {
-    publishers[agent + "/lsd_slam/keyframes"] = nh.advertise<lsd_slam_viewer::keyframeMsg>(agent + "/lsd_slam/keyframes", 5);
-    publishers[agent + "/lsd_slam/graph"] = nh.advertise<lsd_slam_viewer::keyframeGraphMsg>(agent + "/lsd_slam/graph", 5);
-    received[agent] = std::max(0L, number(diagnostics, "agent " + agent, "messages_received"));
-  }
-  std::map<std::string, int> counts;
-  for (const auto& [topic, pub] : publishers) {
-    if (!waitForSubscriber(pub)) {
-      ADD_FAILURE() << topic << ": the node did not subscribe";
-      return counts;
-    }
-  }
-  ros::WallDuration(0.5).sleep();  // the node's side of the connections
-  rosbag::Bag bag(file, rosbag::bagmode::Read);
-  for (const rosbag::MessageInstance& m : rosbag::View(bag)) {
-    const std::string topic = root_agent.empty() ? m.getTopic().substr(1) : root_agent + m.getTopic();
-    const std::string agent = topic.substr(0, topic.find('/'));
-    if (publishers.count(topic) == 0) continue;  // e.g. liveframes or poses
-    if (const auto kf = m.instantiate<lsd_slam_viewer::keyframeMsg>()) publishers.at(topic).publish(*kf);
-    if (const auto graph = m.instantiate<lsd_slam_viewer::keyframeGraphMsg>()) publishers.at(topic).publish(*graph);
-    ++counts[agent];
-    if (!diagnostics.waitFor("agent " + agent, "messages_received", std::to_string(++received[agent]), 30.0)) {
-      ADD_FAILURE() << topic << ": message " << counts[agent] << " not received";
-      return counts;
-    }
-  }
-  return counts;
+// Streams an LSD-SLAM bag into the node (test/common/lsd_bag_stream.h); a message the node did not
+// take fails the test. `root_agent`: see test::streamLsdBag().
+void streamLsdBagOrFail(const std::string& file, DiagnosticsWatcher& diagnostics, const std::string& root_agent = "") {
+  const test::LsdBagStream stream = test::streamLsdBag(file, diagnostics, root_agent);
+  if (!stream.error.empty()) ADD_FAILURE() << stream.error;
 }
 
 // Reads a bag into agent stores, as the node does (for the expected cloud sizes).
@@ -354,7 +314,7 @@ TEST(FromLsdBag, MergesToTheTruthAndGraphUpdatesMoveKeyframes) {
   const std::size_t b_points = static_cast<std::size_t>(stores.at("agent_b").toAgentMap(filters).cloud.cols());
   DiagnosticsWatcher diagnostics(nh);
   ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_received", "0"));
-  streamLsdBag(bag, diagnostics);
+  streamLsdBagOrFail(bag, diagnostics);
   ASSERT_FALSE(HasFailure()) << "the bag's messages did not all reach the node";
   const Response r = callMerge();
   checkMergeOutputs(r, truth(), a_points, b_points, "LSD-SLAM bag through the node");
@@ -861,8 +821,8 @@ TEST(RealLsdBags, BothDirectionsMergeThroughTheNodeNearTheOverlapTruth) {
   ros::NodeHandle nh;
   DiagnosticsWatcher diagnostics(nh);
   ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_received", "0"));
-  streamLsdBag(dir + "/agent_a.bag", diagnostics, "agent_a");
-  streamLsdBag(dir + "/agent_b.bag", diagnostics, "agent_b");
+  streamLsdBagOrFail(dir + "/agent_a.bag", diagnostics, "agent_a");
+  streamLsdBagOrFail(dir + "/agent_b.bag", diagnostics, "agent_b");
   ASSERT_FALSE(HasFailure()) << "the bags' messages did not all reach the node";
   const YAML::Node rec = YAML::LoadFile(dir + "/truth.yaml")["sim3_agent_b_to_agent_a_alternatives"]["overlap_local_recommended"];
   const Sim3 truth_ab = test::sim3FromYaml(rec, "q_xyzw");
@@ -1052,7 +1012,7 @@ TEST(AutoMergeLsd, MergesTheStreamAndAgainAfterAGraphUpdate) {
   DiagnosticsWatcher diagnostics(nh);
   Latest<pcr_pro::MapEdge> edge(nh, "merge_node/edge");
   ASSERT_TRUE(diagnostics.waitFor("agent agent_b", "messages_received", "0"));
-  streamLsdBag(bag, diagnostics);
+  streamLsdBagOrFail(bag, diagnostics);
   ASSERT_FALSE(HasFailure()) << "the bag's messages did not all reach the node";
   const auto first = waitUntil<pcr_pro::MapEdge>(edge, [](const auto& e) { return near(e, truth()); }, kMergeWait);
   ASSERT_TRUE(first) << "no automatic merge of the LSD-SLAM stream: " << diagnostics.value("merge", "last_status");

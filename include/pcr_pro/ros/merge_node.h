@@ -68,10 +68,19 @@ class MergeNode {
     std::map<std::string, Throttle> throttles;
     std::vector<ros::Subscriber> subscribers;
   };
+  /// Where a merge's wall time on the worker went [ms], for the diagnostics (benchmarks read it).
+  struct MergeTiming {
+    double total_ms = 0.0;    // snapshot to published outputs
+    double maps_ms = 0.0;     // the agents' snapshots turned into maps (LSD keyframes -> cloud)
+    double publish_ms = 0.0;  // edge, fused / aligned clouds, tf, history
+    StageTimings stages;      // the pipeline's own (stages.total: the whole pipeline)
+    int features_computed = 0, features_cached = 0;  // keyframes whose SIFT was computed / came from the cache
+  };
   struct MergeState {
     bool attempted = false;
     std::string status = "none", message = "no merge yet", pair, trigger;
     int merges_ok = 0, merges_failed = 0, merges_auto = 0;
+    std::optional<MergeTiming> timing;  // of the last merge that ran the pipeline
   };
   /// One merge to run: the agents (resolved names) and optionally the keyframes.
   struct MergeJob {
@@ -111,6 +120,9 @@ class MergeNode {
 
   /// Runs one merge (on the worker): resolve, snapshot, check, pipeline, publish, record.
   pcr_pro::MergeMaps::Response merge(const MergeJob& job);
+  /// The pipeline on two checked maps, then the outputs of a success; fills `timing` (but its total).
+  pcr_pro::MergeMaps::Response mergeMaps(const MergeJob& job, const Snapshot& source, const AgentMap& source_map,
+                                         const Snapshot& target, const AgentMap& target_map, MergeTiming* timing);
   Snapshot takeSnapshot(Agent* agent) const;
   /// @return NO_DATA / UNKNOWN_KEYFRAME answer when the snapshots cannot be merged as asked
   std::optional<pcr_pro::MergeMaps::Response> checkData(const MergeJob& job, const Snapshot& source,
@@ -133,8 +145,10 @@ class MergeNode {
   /// `~g2o_file`: the pose graph of a successful merge (io/pose_graph.h); a write error is a warning.
   void writePoseGraph(const MergeJob& job, const AgentMap& source_map, const AgentMap& target_map,
                       const MergeResult& result) const;
-  /// Logs a merge that did not succeed and counts every outcome for the diagnostics.
-  void noteOutcome(const MergeJob& job, const pcr_pro::MergeMaps::Response& response);
+  /// Logs a merge that did not succeed and counts every outcome for the diagnostics, with where
+  /// its time went when the pipeline ran (`timing`, else the last such merge's stays).
+  void noteOutcome(const MergeJob& job, const pcr_pro::MergeMaps::Response& response,
+                   const std::optional<MergeTiming>& timing = std::nullopt);
   Agent* findAgent(const std::string& name) const;
 
   void agentDiagnostics(Agent* agent, diagnostic_updater::DiagnosticStatusWrapper& status);
