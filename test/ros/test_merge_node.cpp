@@ -36,9 +36,12 @@
 #include "pcr_pro/GetEdges.h"
 #include "pcr_pro/MergeMaps.h"
 #include "pcr_pro/io/bundle.h"
+#include "pcr_pro/io/lsd_keyframe.h"
+#include "pcr_pro/io/param_schema.h"
 #include "pcr_pro/io/pose_graph.h"
 #include "pcr_pro/merge/agent_store.h"
 #include "pcr_pro/ros/msg_conversion.h"
+#include "pcr_pro/ros/auto_merge.h"
 #include "pcr_pro/ros/node_options.h"
 
 namespace pcr_pro {
@@ -767,9 +770,23 @@ TEST_F(Live, ConcurrentAndRepeatedMergeCallsAreAllAnsweredWhileDataArrives) {
   EXPECT_EQ(callMerge("agent_x").status, Response::UNKNOWN_AGENT);  // still serving
 }
 
+// Every parameter of one of the node's schemas: merge_node.yaml states it, and its value read back
+// by the node's loader equals the struct default.
+template <typename O>
+void expectStatedDefaults(const O& shipped, const O& defaults) {
+  const ParamSchema<O>& schema = paramSchema<O>();
+  for (const Param<O>& p : schema.params) {
+    const std::string key = schema.fullKey(p, '/');
+    EXPECT_TRUE(ros::param::has("/merge_node/" + key)) << "config/merge_node.yaml does not state " << key;
+    EXPECT_TRUE(paramEqual(p, shipped, defaults))
+        << key << " = " << paramValueText(p, shipped) << ", default " << paramValueText(p, defaults);
+  }
+}
+
 TEST_F(Live, ShippedNodeConfigStatesTheStructDefaults) {
   // config/merge_node.yaml, loaded by merge_node.launch into the node's namespace, read back with
-  // the node's own loader: its values must be the option struct's defaults (written once).
+  // the node's own loader: it states every parameter of the schemas, each at the option struct's
+  // default (written once).
   const NodeOptions shipped = loadNodeOptions(ros::NodeHandle("/merge_node"));
   const NodeOptions d;
   ASSERT_EQ(shipped.agents.size(), d.agents.size());
@@ -777,34 +794,10 @@ TEST_F(Live, ShippedNodeConfigStatesTheStructDefaults) {
     EXPECT_EQ(shipped.agents[i].name, d.agents[i].name);
     EXPECT_EQ(shipped.agents[i].frame_id, d.agents[i].frame_id);
   }
-  EXPECT_EQ(shipped.input, d.input);
-  EXPECT_EQ(shipped.queue_size, d.queue_size);
-  EXPECT_EQ(shipped.publish_tf, d.publish_tf);
-  EXPECT_EQ(shipped.lsd.scaled_depth_var_th, d.lsd.scaled_depth_var_th);
-  EXPECT_EQ(shipped.lsd.abs_depth_var_th, d.lsd.abs_depth_var_th);
-  EXPECT_EQ(shipped.lsd.min_near_support, d.lsd.min_near_support);
-  EXPECT_EQ(shipped.lsd.sparsify_factor, d.lsd.sparsify_factor);
-  EXPECT_EQ(shipped.limits.max_keyframes, d.limits.max_keyframes);
-  EXPECT_EQ(shipped.limits.max_cloud_points, d.limits.max_cloud_points);
-  EXPECT_EQ(shipped.seed, d.seed);
-  EXPECT_EQ(shipped.diagnostic_period, d.diagnostic_period);
-  EXPECT_EQ(shipped.max_history_per_pair, d.max_history_per_pair);
-  EXPECT_EQ(shipped.g2o_file, d.g2o_file);
-  EXPECT_EQ(shipped.auto_merge.enabled, d.auto_merge.enabled);
-  EXPECT_EQ(shipped.auto_merge.target, d.auto_merge.target);
-  EXPECT_EQ(shipped.auto_merge.min_keyframes, d.auto_merge.min_keyframes);
-  EXPECT_EQ(shipped.auto_merge.new_keyframes, d.auto_merge.new_keyframes);
-  EXPECT_EQ(shipped.auto_merge.after_graph_update, d.auto_merge.after_graph_update);
-  EXPECT_EQ(shipped.auto_merge.period, d.auto_merge.period);
-  // ... and the file states every limit explicitly (not just by leaving it out).
-  int value = 0;
-  EXPECT_TRUE(ros::param::get("/merge_node/max_keyframes_per_agent", value));
-  EXPECT_TRUE(ros::param::get("/merge_node/max_cloud_points_per_agent", value));
-  for (const char* key : {"seed", "diagnostic_period", "max_history_per_pair", "auto_merge/enabled", "auto_merge/target",
-                          "auto_merge/min_keyframes", "auto_merge/new_keyframes", "auto_merge/after_graph_update",
-                          "auto_merge/period"}) {
-    EXPECT_TRUE(ros::param::has(std::string("/merge_node/") + key)) << key;
-  }
+  expectStatedDefaults(shipped, d);
+  expectStatedDefaults(shipped.lsd, d.lsd);
+  expectStatedDefaults(shipped.limits, d.limits);
+  expectStatedDefaults(shipped.auto_merge, d.auto_merge);
 }
 
 
