@@ -57,6 +57,18 @@ class MergeGates {
   GateVerdict judge(const KeyframeEstimate& keyframes, const Refinement& refinement,
                     const MapRegistration& registration) const;
 
+ /**
+   * @brief The fraction of the map clouds that an estimate overlaps (MapRegistration::overlap()
+   * over the whole clouds, at merge.overlap_distance_factor): the clouds' own vote between two
+   * estimates.
+   */
+  double cloudOverlap(const Sim3& target_source, const MapRegistration& registration) const;
+
+  /// The clouds prefer one estimate to another when its cloudOverlap() exceeds the other's by
+  /// this factor: the overlap of a correct alignment varies by a few percent with the estimate's
+  /// noise, a wrong one loses a large part of it.
+  static constexpr double kCloudPreference = 1.2;
+
  private:
   MergeGateOptions options_;
 };

@@ -22,10 +22,6 @@ std::string fmt(double v, int precision = 3) {
 // the merge refuse: at twice the gate's Mahalanobis length the two estimates exclude each other
 // at any reasonable confidence, so at least one is wrong and the data cannot say which.
 constexpr double kRefuseFactor = 4.0;
-// The clouds prefer the refined estimate when its overlap exceeds the keyframe estimate's by this
-// factor: the overlap of a correct alignment varies by a few percent with the estimate's noise,
-// a wrong one loses a large part of it.
-constexpr double kCloudPreference = 1.2;
 
 // How far the refinement moves the keyframe matches from the keyframe estimate, and the farthest
 // any used pair's own estimate moves them. The refinement and the pooled keyframe estimate both
@@ -123,7 +119,7 @@ bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refineme
   // and keeping it would merge wrongly: refused.
   const double overlap_keyframes = registration.overlap(keyframes.estimate, options.overlap_distance_factor);
   const double overlap_refined = registration.overlap(refinement.estimate, options.overlap_distance_factor);
-  if (overlap_refined > kCloudPreference * overlap_keyframes) {
+  if (overlap_refined > MergeGates::kCloudPreference * overlap_keyframes) {
     v->status = Status::kIcpNotConverged;
     v->message = "refused: " + why + ", and the clouds fit the refined estimate better (overlap " +
                  fmt(100 * overlap_refined) + " % against " + fmt(100 * overlap_keyframes) +
@@ -163,6 +159,10 @@ void overlapAndStatus(const KeyframeEstimate& keyframes, const Refinement& refin
 }  // namespace
 
 MergeGates::MergeGates(const MergeGateOptions& options) : options_(options) { validate(options_); }
+
+double MergeGates::cloudOverlap(const Sim3& target_source, const MapRegistration& registration) const {
+  return registration.overlap(target_source, options_.overlap_distance_factor);
+}
 
 GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinement& refinement,
                               const MapRegistration& registration) const {
