@@ -261,5 +261,29 @@ TEST(Covariance, TooFewCorrespondences) {
   EXPECT_NE(r.status, Status::kOk);
 }
 
+// The scale ICP's errors-in-variables correction weighs the two clouds' noise by their surface
+// thickness: it must compare two clouds by their noise (twice the noise along the normal: four
+// times the thickness², within 10 %) and scale with the cloud's units. The noise here is below a
+// third of the point spacing; at noise near the spacing the nearest neighbours are chosen
+// partly by it, and the thicker cloud's thickness² is underestimated (3.0 instead of 4 at 20000
+// points).
+TEST(SurfaceThickness, ComparesCloudsByTheirNoiseAlongTheNormal) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::normal_distribution<double> n(0.0, 1.0);
+  const auto plane = [&](double sigma) {
+    Cloud c(3, 5000);
+    for (Eigen::Index i = 0; i < c.cols(); ++i) c.col(i) = Eigen::Vector3d(u(rng), u(rng), sigma * n(rng));
+    return c;
+  };
+  const Cloud thin = plane(0.004), thick = plane(0.008);
+  const double t_thin = surfaceThickness2(KdTree(thin), 10, 2000);
+  const double t_thick = surfaceThickness2(KdTree(thick), 10, 2000);
+  ASSERT_GT(t_thin, 0.0);
+  EXPECT_NEAR(t_thick / t_thin, 4.0, 0.4);
+  const Cloud scaled = 3.0 * thin;
+  EXPECT_NEAR(surfaceThickness2(KdTree(scaled), 10, 2000) / t_thin, 9.0, 1e-6 * 9.0);
+}
+
 }  // namespace
 }  // namespace pcr_pro

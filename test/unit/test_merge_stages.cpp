@@ -11,6 +11,7 @@
 #include <memory>
 #include <random>
 #include <stdexcept>
+#include <tuple>
 
 #include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/merge/merge_pipeline.h"
@@ -212,6 +213,29 @@ TEST_F(SimWorld, IcpStartedAtTheTruthStaysThereAtPartialOverlap) {
   EXPECT_EQ(r.status, Status::kOk) << r.message;
   EXPECT_LT(rotationDistance(r.transform->rotation(), truth.target_source.rotation()), test::rad(0.8));
   EXPECT_LT(std::abs(r.transform->scale() / truth.target_source.scale() - 1.0), 0.015);
+}
+
+// The bench's harder worlds for pcr_pro_icp's path, started at the exact truth: 35 % overlap
+// (seed 1001), where the scale collapsed to 0.6 times the truth (the coarse levels, on a source
+// sample sparser than the target, estimated it), and 60 % overlap with inverse-depth noise 0.03,
+// where the scale drifted -4.0 % (the source's own noise, in both its residuals and their lever
+// arms, pulled it down). Bound: the README's 1 deg / 1.5 % scale (measured: 0.3 deg / 0.00 %
+// and 0.9 deg / -1.1 %).
+TEST(IcpScale, StartedAtTheTruthItStaysOnLowOverlapAndNoisySemiDenseMaps) {
+  for (const auto& [seed, overlap, noise] : {std::tuple<int, double, double>{1001, 0.35, 0.01}, {1000, 0.6, 0.03}}) {
+    SimulatorOptions w = test::mergeTestWorld(static_cast<std::uint64_t>(seed), 2, overlap);
+    w.camera = PinholeCamera{262.5, 262.5, 159.5, 119.5, 320, 240};
+    w.map.semi_dense.idepth_noise = noise;
+    const Simulation sim = simulate(w);
+    const Sim3& truth = sim.pair(0, 1).target_source;
+    RegistrationOptions o;
+    o.icp.estimate_scale = true;
+    const RegistrationReport r = registerClouds(sim.agents[1].map.cloud, sim.agents[0].map.cloud, truth, o);
+    ASSERT_TRUE(r.transform.has_value()) << r.message;
+    EXPECT_EQ(r.status, Status::kOk) << r.message;
+    EXPECT_LT(rotationDistance(r.transform->rotation(), truth.rotation()), test::rad(1.0)) << "overlap " << overlap;
+    EXPECT_LT(std::abs(r.transform->scale() / truth.scale() - 1.0), 0.015) << "overlap " << overlap;
+  }
 }
 
 TEST_F(SimWorld, AToBIsTheInverseOfBToAWithinTheirUncertainties) {

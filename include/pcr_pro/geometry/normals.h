@@ -29,4 +29,17 @@ Cloud estimateNormals(const KdTree& tree, int k);
  */
 Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k);
 
+/**
+ * @brief How thick the cloud's surfaces are: the median, over an even sample of its points, of
+ * the variance along the normal of each point's k nearest neighbours (smallest PCA eigenvalue
+ * over k). On a smooth surface it is the point noise's variance along the normal times a factor
+ * that depends on k only (plus curvature at the neighbourhood's size), so two clouds measured
+ * with the same k compare by their noise.
+ * @param[in] tree k-d tree over the cloud
+ * @param[in] k neighbours (>= 3)
+ * @param[in] samples at most this many points are measured (>= 1)
+ * @return the median variance [cloud units²]; 0 for fewer than 3 points
+ */
+double surfaceThickness2(const KdTree& tree, int k, Eigen::Index samples);
+
 }  // namespace pcr_pro

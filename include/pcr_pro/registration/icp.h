@@ -50,8 +50,9 @@ struct IcpOptions {
   /// Coarse-to-fine: the iterations first run on random subsets of the (sampled) source of
   /// this many points, then four times as many, ... (each level used while the sample has more
   /// than twice its size), each until the differential check passes at kCoarseToleranceFactor
-  /// times the thresholds below; then on the whole sample. The counter check applies to each
-  /// level [points]; 0 = one level.
+  /// times the thresholds below; then on the whole sample. The coarse levels keep the scale (a
+  /// sample sparser than the target biases it); the whole sample estimates it. The counter check
+  /// applies to each level [points]; 0 = one level.
   int coarse_source_points = 2000;
   // --- matcher
   int normal_neighbors = 10;  ///< neighbours used to estimate target normals (>= 3)
@@ -87,7 +88,10 @@ struct IcpOptions {
   double kernel_width = 2.385;
   // --- error minimisation
   ErrorMetric error_metric = ErrorMetric::kPointToPlane;
-  /// Estimate a similarity (scale) instead of a rigid transform.
+  /// Estimate a similarity (scale) instead of a rigid transform. With point_to_plane the scale's
+  /// estimating equation is corrected for the source points' own noise, which otherwise shrinks
+  /// the source (the share φ of the residuals' variance that the scaled source noise makes, from
+  /// the two clouds' surfaceThickness2()); point_to_point has no such correction.
   bool estimate_scale = false;
   /// Largest relative scale change in one iteration, in (0, 1) [-].
   double max_scale_step = 0.1;

@@ -2,15 +2,17 @@
 
 #include <Eigen/Eigenvalues>
 
+#include <algorithm>
 #include <vector>
 
 namespace pcr_pro {
 
 namespace {
 
-// Unit normal of the k nearest neighbours of a point (smallest PCA axis); zero with < 3.
+// Unit normal of the k nearest neighbours of a point (smallest PCA axis); zero with < 3. With
+// `thickness2`, the neighbours' variance along it.
 Eigen::Vector3d normalAt(const KdTree& tree, const Eigen::Vector3d& query, int k, std::vector<Eigen::Index>* idx,
-                         std::vector<double>* d2) {
+                         std::vector<double>* d2, double* thickness2 = nullptr) {
   const Cloud& pts = tree.points();
   tree.knn(query, k, idx, d2);
   if (idx->size() < 3) return Eigen::Vector3d::Zero();
@@ -24,6 +26,7 @@ Eigen::Vector3d normalAt(const KdTree& tree, const Eigen::Vector3d& query, int k
   }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
   eig.computeDirect(cov);
+  if (thickness2 != nullptr) *thickness2 = std::max(0.0, eig.eigenvalues()(0)) / static_cast<double>(idx->size());
   return eig.eigenvectors().col(0).normalized();
 }
 
@@ -56,6 +59,24 @@ Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& ind
     }
   }
   return normals;
+}
+
+double surfaceThickness2(const KdTree& tree, int k, Eigen::Index samples) {
+  const Cloud& pts = tree.points();
+  const Eigen::Index n = pts.cols();
+  if (n < 3 || samples < 1) return 0.0;
+  const Eigen::Index step = std::max<Eigen::Index>(1, n / samples);
+  std::vector<double> values;
+  std::vector<Eigen::Index> idx;
+  std::vector<double> d2;
+  for (Eigen::Index i = 0; i < n; i += step) {
+    double t2 = 0.0;
+    if (normalAt(tree, pts.col(i), k, &idx, &d2, &t2).squaredNorm() > 0.0) values.push_back(t2);
+  }
+  if (values.empty()) return 0.0;
+  const auto mid = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
+  std::nth_element(values.begin(), mid, values.end());
+  return *mid;
 }
 
 }  // namespace pcr_pro
