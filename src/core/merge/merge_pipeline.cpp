@@ -211,12 +211,13 @@ bool judgeCamp(const MergeGates& gates, const MapRegistration& registration, con
 // the camps or in the wrong one. Two independent kinds of evidence can still agree:
 // - The refinement on the map clouds converged to one camp, and the gates refused because the
 //   clouds fit it better than the keyframe estimate: the camp around the refinement is tried.
-// - The refinement from the pooled estimate failed (it started too far from the truth to
-//   converge): the camp around each candidate pair's own estimate is tried when it is closed
-//   (below), and one is taken only when judgeCamp() passes it and no other camp. (On a simulated
-//   15 % overlap with 2.5 % drift and no depth images, two right and two wrong pairs pooled
-//   22 deg from the truth, which was reported OK with a 7 deg 1-sigma; the camp of the two right
-//   pairs refines from 1.3 deg, overlaps the clouds 16 % against 14 %, and is reported.)
+// - The gates kept the keyframe estimate (the refinement failed, or converged and was not kept):
+//   the camp around the refinement (when it converged) and the camp around each candidate
+//   pair's own estimate, when that camp is closed (below), are tried, and one is taken only when
+//   judgeCamp() passes it against the keyframe estimate and no other camp. (On a simulated 15 %
+//   overlap with 2.5 % drift and no depth images, two right and two wrong pairs pooled 22 deg
+//   from the truth, which was reported OK with a 7 deg 1-sigma; the camp of the two right pairs
+//   refines from 1.3 deg, overlaps the clouds 16 % against 14 %, and is reported.)
 // Nothing is taken from the first refinement but the choice of pairs. @return true when the
 // chosen camp replaces kf, refinement and verdict
 bool arbitrate(const SimilarityInitializer& initializer, const MergeGates& gates, const MapRegistration& registration,
@@ -224,21 +225,25 @@ bool arbitrate(const SimilarityInitializer& initializer, const MergeGates& gates
   int candidates = 0;
   for (const PairEvidence& e : kf->pairs) candidates += e.in_neighbourhood ? 1 : 0;
   if (candidates < 3) return false;
-  const bool failed = refinement->status != Status::kOk && refinement->status != Status::kDegenerate;
-  if (!verdict->clouds_prefer_refinement && !failed) return false;
+  const bool converged = refinement->status == Status::kOk || refinement->status == Status::kDegenerate;
+  const bool merged = verdict->status == Status::kOk || verdict->status == Status::kDegenerate;
+  // Refused for another reason (the overlap, or the two estimates excluding each other), or the
+  // refinement kept: nothing to arbitrate.
+  if (!verdict->clouds_prefer_refinement && !(merged && !verdict->refinement_kept)) return false;
   const auto usedOf = [](const KeyframeEstimate& k) {
     std::vector<bool> used;
     for (const PairEvidence& e : k.pairs) used.push_back(e.used);
     return used;
   };
-  // The candidate camps: around the refinement, or around each used pair's estimate.
+  // The candidate camps: around the refinement, and around each candidate pair's estimate.
   std::vector<Camp> camps;
   std::vector<int> hypothesis_pair;  // the pair whose estimate each camp was pooled around (-1: refinement)
-  if (verdict->clouds_prefer_refinement) {
+  if (converged) {
     camps.emplace_back();
     camps.back().keyframes = initializer.poolAround(*kf, refinement->estimate);
     hypothesis_pair.push_back(-1);
-  } else {
+  }
+  if (!verdict->clouds_prefer_refinement) {
     for (std::size_t i = 0; i < kf->pairs.size(); ++i) {
       if (!kf->pairs[i].in_neighbourhood) continue;
       camps.emplace_back();
@@ -261,19 +266,27 @@ bool arbitrate(const SimilarityInitializer& initializer, const MergeGates& gates
     if (used == incumbent || std::find(judged.begin(), judged.end(), used) != judged.end()) continue;
     bool closed = true;
     for (std::size_t d = 0; d < camps.size() && hypothesis_pair[c] >= 0; ++d) {
+      if (hypothesis_pair[d] < 0) continue;
       const bool member = used[static_cast<std::size_t>(hypothesis_pair[d])];
       closed = closed && (!member || (camps[d].keyframes.status == Status::kOk && usedOf(camps[d].keyframes) == used));
     }
     if (!closed) continue;
     judged.push_back(used);
-    const bool ok = judgeCamp(gates, registration, failed ? &verdict->estimate : nullptr, &camp);
+    const bool ok = judgeCamp(gates, registration, merged ? &verdict->estimate : nullptr, &camp);
     if (ok) passed.push_back(std::move(camp));
   }
-  if (passed.size() != 1) return false;
-  Camp& camp = passed.front();
-  const std::string why = verdict->clouds_prefer_refinement
-                              ? verdict->message.substr(verdict->message.find(':') + 2)
-                              : "the refinement from the pooled estimate failed: " + refinement->message;
+  if (passed.empty()) return false;
+  // Several camps can pass (nested ones: the camp around the refinement may hold one more pair
+  // than the closed camp inside it): the one whose refinement was kept, then the one that fits
+  // the clouds best.
+  const auto rank = [&](const Camp& c) {
+    return std::make_pair(c.verdict.refinement_kept, gates.cloudOverlap(c.verdict.estimate, registration));
+  };
+  Camp& camp = *std::max_element(passed.begin(), passed.end(),
+                                 [&](const Camp& a, const Camp& b) { return rank(a) < rank(b); });
+  const std::string why = verdict->clouds_prefer_refinement ? verdict->message.substr(verdict->message.find(':') + 2)
+                         : converged ? "the refinement from the pooled estimate was not kept: " + verdict->message
+                                     : "the refinement from the pooled estimate failed: " + refinement->message;
   camp.verdict.message = "the keyframe pairs split and the map clouds side with " +
                          std::to_string(camp.keyframes.used_pairs) + " of them (" + why + "); " + camp.verdict.message;
   camp.keyframes.ms += kf->ms;
