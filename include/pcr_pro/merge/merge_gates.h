@@ -57,7 +57,7 @@ class MergeGates {
   GateVerdict judge(const KeyframeEstimate& keyframes, const Refinement& refinement,
                     const MapRegistration& registration) const;
 
- /**
+  /**
    * @brief The fraction of the map clouds that an estimate overlaps (MapRegistration::overlap()
    * over the whole clouds, at merge.overlap_distance_factor): the clouds' own vote between two
    * estimates.

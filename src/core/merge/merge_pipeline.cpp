@@ -189,9 +189,10 @@ struct Camp {
 };
 
 // Refines and judges a camp (camp->keyframes set) that holds at least two pairs. With
-// `incumbent` (the estimate the camp would replace, whose own refinement failed), the clouds
-// must support the camp as well: its refinement converged and is kept, or converged and its
-// estimate overlaps the clouds more than the incumbent does. @return whether it passes
+// `incumbent` (the keyframe estimate the camp would replace, whose refinement failed or was not
+// kept), the clouds must support the camp as well: its refinement converged and is kept, or
+// converged and its estimate overlaps the clouds more than the incumbent does. @return whether
+// it passes
 bool judgeCamp(const MergeGates& gates, const MapRegistration& registration, const Sim3* incumbent, Camp* camp) {
   if (camp->keyframes.status != Status::kOk || camp->keyframes.used_pairs < 2) return false;
   camp->refinement = registration.refine(camp->keyframes.estimate, camp->keyframes.matches);
@@ -213,8 +214,8 @@ bool judgeCamp(const MergeGates& gates, const MapRegistration& registration, con
 //   clouds fit it better than the keyframe estimate: the camp around the refinement is tried.
 // - The gates kept the keyframe estimate (the refinement failed, or converged and was not kept):
 //   the camp around the refinement (when it converged) and the camp around each candidate
-//   pair's own estimate, when that camp is closed (below), are tried, and one is taken only when
-//   judgeCamp() passes it against the keyframe estimate and no other camp. (On a simulated 15 %
+//   pair's own estimate, when that camp is closed (below), are tried against the keyframe
+//   estimate by judgeCamp(), and the best that passes is taken (below). (On a simulated 15 %
 //   overlap with 2.5 % drift and no depth images, two right and two wrong pairs pooled 22 deg
 //   from the truth, which was reported OK with a 7 deg 1-sigma; the camp of the two right pairs
 //   refines from 1.3 deg, overlaps the clouds 16 % against 14 %, and is reported.)
