@@ -284,6 +284,27 @@ bool wrongRelativePose(const Simulation& sim, const CandidatePair& c) {
   return rotationDistance(c.pose.rotation, truth) >= test::rad(5.0);
 }
 
+// The maps without their depth images (keyframe depth then comes from the map clouds).
+void dropDepthImages(Simulation* sim) {
+  for (SimAgent& agent : sim->agents) {
+    for (MapKeyframe& k : agent.map.keyframes) k.depth = cv::Mat();
+  }
+}
+
+// Expects every verified pair with a wrong relative pose to be reported unused and every other
+// one used. @return how many were wrong
+int expectOnlyTheRightPairsUsed(const Simulation& sim, const FrontEndResult& front, const MergeResult& r) {
+  int wrong = 0;
+  EXPECT_EQ(r.report.keyframe_pairs.size(), static_cast<std::size_t>(front.verified));
+  for (int i = 0; i < front.verified && static_cast<std::size_t>(i) < r.report.keyframe_pairs.size(); ++i) {
+    const KeyframePairReport& p = r.report.keyframe_pairs[static_cast<std::size_t>(i)];
+    const bool is_wrong = wrongRelativePose(sim, front.pairs[static_cast<std::size_t>(i)]);
+    wrong += is_wrong ? 1 : 0;
+    EXPECT_EQ(p.used, !is_wrong) << p.source_keyframe << "->" << p.target_keyframe << ": " << p.note;
+  }
+  return wrong;
+}
+
 TEST(LowOverlapWorld, ARelativePoseThatDisagreesWithItsOwnDepthMatchesIsNotUsed) {
   const Simulation sim = lowOverlapWorld();
   const AgentMap& a = sim.agents[0].map;
@@ -320,11 +341,9 @@ TEST(LowOverlapWorld, ARelativePoseThatDisagreesWithItsOwnDepthMatchesIsNotUsed)
 // again, agree with it, and the wrong pairs are dropped with the reason.
 TEST(LowOverlapWorld, WhenThePairsSplitTheMapCloudsChooseTheSide) {
   Simulation sim = lowOverlapWorld();
-  AgentMap& a = sim.agents[0].map;
-  AgentMap& b = sim.agents[1].map;
-  for (AgentMap* map : {&a, &b}) {
-    for (MapKeyframe& k : map->keyframes) k.depth = cv::Mat();
-  }
+  dropDepthImages(&sim);
+  const AgentMap& a = sim.agents[0].map;
+  const AgentMap& b = sim.agents[1].map;
   const MergeOptions options;
   const FrontEndResult front = KeyframeFrontEnd(options).run(b, a, MergeRequest());
   const MergeResult r = mergeMaps(b, a, MergeRequest(), options);
@@ -333,15 +352,7 @@ TEST(LowOverlapWorld, WhenThePairsSplitTheMapCloudsChooseTheSide) {
   const SimPairTruth& truth = sim.pair(0, 1);
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.target_source.rotation()), test::rad(1.0));
   EXPECT_LT(std::abs(r.report.transform->scale() / truth.target_source.scale() - 1.0), 0.015);
-  int wrong = 0;
-  ASSERT_EQ(r.report.keyframe_pairs.size(), static_cast<std::size_t>(front.verified));
-  for (int i = 0; i < front.verified; ++i) {
-    const KeyframePairReport& p = r.report.keyframe_pairs[static_cast<std::size_t>(i)];
-    const bool is_wrong = wrongRelativePose(sim, front.pairs[static_cast<std::size_t>(i)]);
-    wrong += is_wrong ? 1 : 0;
-    EXPECT_EQ(p.used, !is_wrong) << p.source_keyframe << "->" << p.target_keyframe << ": " << p.note;
-  }
-  ASSERT_GE(wrong, 1);
+  ASSERT_GE(expectOnlyTheRightPairsUsed(sim, front, r), 1);
 }
 
 // The same world with 2.5 % scale drift and the noisier semi-dense depth of the bench's noisy
@@ -359,25 +370,15 @@ TEST(LowOverlapWorld, WhenTheGatesWouldKeepAPooledEstimateThatTheCloudsDoNotSupp
   o.drift.bend_deg = 1.0;
   o.map.semi_dense.idepth_noise = 0.03;
   Simulation sim = simulate(o);
-  AgentMap& a = sim.agents[0].map;
-  AgentMap& b = sim.agents[1].map;
-  for (AgentMap* map : {&a, &b}) {
-    for (MapKeyframe& k : map->keyframes) k.depth = cv::Mat();
-  }
+  dropDepthImages(&sim);
+  const AgentMap& a = sim.agents[0].map;
+  const AgentMap& b = sim.agents[1].map;
   const MergeOptions options;
   const FrontEndResult front = KeyframeFrontEnd(options).run(b, a, MergeRequest());
   const MergeResult r = mergeMaps(b, a, MergeRequest(), options);
   ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
   EXPECT_NE(r.report.message.find("the keyframe pairs split"), std::string::npos) << r.report.message;
-  int wrong = 0;
-  ASSERT_EQ(r.report.keyframe_pairs.size(), static_cast<std::size_t>(front.verified));
-  for (int i = 0; i < front.verified; ++i) {
-    const KeyframePairReport& p = r.report.keyframe_pairs[static_cast<std::size_t>(i)];
-    const bool is_wrong = wrongRelativePose(sim, front.pairs[static_cast<std::size_t>(i)]);
-    wrong += is_wrong ? 1 : 0;
-    EXPECT_EQ(p.used, !is_wrong) << p.source_keyframe << "->" << p.target_keyframe << ": " << p.note;
-  }
-  ASSERT_GE(wrong, 2);
+  ASSERT_GE(expectOnlyTheRightPairsUsed(sim, front, r), 2);
   // Two pairs of noisy depth on a drifting map: within 2 deg (1.3 measured) and, against its own
   // covariance, within the chi-square 95 % bound for 6 DoF.
   const SimPairTruth& truth = sim.pair(0, 1);

@@ -186,23 +186,24 @@ struct Camp {
   KeyframeEstimate keyframes;
   Refinement refinement;
   GateVerdict verdict;
+  double cloud_overlap = 0.0;  // MergeGates::cloudOverlap() of the verdict's estimate
 };
 
 // Refines and judges a camp (camp->keyframes set) that holds at least two pairs. With
-// `incumbent` (the keyframe estimate the camp would replace, whose refinement failed or was not
-// kept), the clouds must support the camp as well: its refinement converged and is kept, or
-// converged and its estimate overlaps the clouds more than the incumbent does. @return whether
-// it passes
-bool judgeCamp(const MergeGates& gates, const MapRegistration& registration, const Sim3* incumbent, Camp* camp) {
+// `incumbent_overlap` (the cloudOverlap() of the keyframe estimate the camp would replace, whose
+// refinement failed or was not kept; negative when there is none), the clouds must support the
+// camp as well: its refinement converged and is kept, or converged and its estimate overlaps the
+// clouds more than the incumbent does. @return whether it passes
+bool judgeCamp(const MergeGates& gates, const MapRegistration& registration, double incumbent_overlap, Camp* camp) {
   if (camp->keyframes.status != Status::kOk || camp->keyframes.used_pairs < 2) return false;
   camp->refinement = registration.refine(camp->keyframes.estimate, camp->keyframes.matches);
   camp->verdict = gates.judge(camp->keyframes, camp->refinement, registration);
   const Status status = camp->verdict.status;
   if (status != Status::kOk && status != Status::kDegenerate) return false;
   const bool converged = camp->refinement.status == Status::kOk || camp->refinement.status == Status::kDegenerate;
-  return incumbent == nullptr || camp->verdict.refinement_kept ||
-         (converged && gates.cloudOverlap(camp->verdict.estimate, registration) >
-             gates.cloudOverlap(*incumbent, registration));
+  camp->cloud_overlap = gates.cloudOverlap(camp->verdict.estimate, registration);
+  return incumbent_overlap < 0.0 || camp->verdict.refinement_kept ||
+         (converged && camp->cloud_overlap > incumbent_overlap);
 }
 
 // The keyframe pairs can split into camps that disagree, each with its own relative poses and
@@ -258,6 +259,7 @@ bool arbitrate(const SimilarityInitializer& initializer, const MergeGates& gates
   // LSD-SLAM bags, six pairs gave four different sets, and refining each would have quadrupled
   // the time of a merge whose every refinement fails to converge).
   const std::vector<bool> incumbent = usedOf(*kf);
+  const double incumbent_overlap = merged ? gates.cloudOverlap(verdict->estimate, registration) : -1.0;
   std::vector<std::vector<bool>> judged;
   std::vector<Camp> passed;
   for (std::size_t c = 0; c < camps.size(); ++c) {
@@ -273,18 +275,16 @@ bool arbitrate(const SimilarityInitializer& initializer, const MergeGates& gates
     }
     if (!closed) continue;
     judged.push_back(used);
-    const bool ok = judgeCamp(gates, registration, merged ? &verdict->estimate : nullptr, &camp);
-    if (ok) passed.push_back(std::move(camp));
+    if (judgeCamp(gates, registration, incumbent_overlap, &camp)) passed.push_back(std::move(camp));
   }
   if (passed.empty()) return false;
   // Several camps can pass (nested ones: the camp around the refinement may hold one more pair
   // than the closed camp inside it): the one whose refinement was kept, then the one that fits
   // the clouds best.
-  const auto rank = [&](const Camp& c) {
-    return std::make_pair(c.verdict.refinement_kept, gates.cloudOverlap(c.verdict.estimate, registration));
-  };
-  Camp& camp = *std::max_element(passed.begin(), passed.end(),
-                                 [&](const Camp& a, const Camp& b) { return rank(a) < rank(b); });
+  Camp& camp = *std::max_element(passed.begin(), passed.end(), [](const Camp& a, const Camp& b) {
+    return std::make_pair(a.verdict.refinement_kept, a.cloud_overlap) <
+           std::make_pair(b.verdict.refinement_kept, b.cloud_overlap);
+  });
   const std::string why = verdict->clouds_prefer_refinement ? verdict->message.substr(verdict->message.find(':') + 2)
                          : converged ? "the refinement from the pooled estimate was not kept: " + verdict->message
                                      : "the refinement from the pooled estimate failed: " + refinement->message;
