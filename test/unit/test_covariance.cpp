@@ -285,5 +285,35 @@ TEST(SurfaceThickness, ComparesCloudsByTheirNoiseAlongTheNormal) {
   EXPECT_NEAR(surfaceThickness2(KdTree(scaled), 10, 2000) / t_thin, 9.0, 1e-6 * 9.0);
 }
 
+// The ICP's planes pass through the centroid of each point's k neighbours: on a noisy plane
+// (noise a seventh of the spacing) that centroid's offset along the normal has about a k-th of
+// one point's variance. Bounds: a point's own variance is σ² (within 10 % at 500 samples), the
+// centroids' within a factor 2 of σ²/k (the neighbours are picked partly by the noise).
+TEST(NormalsAt, CentroidsCarryAKthOfOnePointsNoise) {
+  std::mt19937 rng(6);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::normal_distribution<double> n(0.0, 1.0);
+  const double sigma = 0.004;
+  const int k = 10;
+  Cloud c(3, 5000);
+  for (Eigen::Index i = 0; i < c.cols(); ++i) c.col(i) = Eigen::Vector3d(u(rng), u(rng), sigma * n(rng));
+  std::vector<Eigen::Index> at;
+  for (Eigen::Index i = 0; i < c.cols(); i += 10) at.push_back(i);
+  Cloud centroids;
+  estimateNormalsAt(KdTree(c), at, k, &centroids);
+  ASSERT_EQ(centroids.cols(), static_cast<Eigen::Index>(at.size()));
+  double points2 = 0.0, centroids2 = 0.0;
+  for (std::size_t j = 0; j < at.size(); ++j) {
+    const auto col = static_cast<Eigen::Index>(j);
+    points2 += std::pow(c(2, at[j]), 2);
+    centroids2 += std::pow(centroids(2, col), 2);
+  }
+  points2 /= static_cast<double>(at.size());
+  centroids2 /= static_cast<double>(at.size());
+  EXPECT_NEAR(points2, sigma * sigma, 0.1 * sigma * sigma);
+  EXPECT_GT(centroids2, 0.5 * sigma * sigma / k);
+  EXPECT_LT(centroids2, 2.0 * sigma * sigma / k);
+}
+
 }  // namespace
 }  // namespace pcr_pro

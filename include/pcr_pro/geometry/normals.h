@@ -25,9 +25,12 @@ Cloud estimateNormals(const KdTree& tree, int k);
  * @param[in] tree k-d tree over the cloud
  * @param[in] indices points (columns of tree.points()) to estimate normals for
  * @param[in] k neighbours used (>= 3)
+ * @param[out] centroids when given, the centroid of each point's neighbours (the point itself
+ *             where the normal is zero), in the same order
  * @return one normal per index, in the same order
  */
-Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k);
+Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k,
+                        Cloud* centroids = nullptr);
 
 /**
  * @brief How thick the cloud's surfaces are: the median, over an even sample of its points, of

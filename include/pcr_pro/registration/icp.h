@@ -55,7 +55,7 @@ struct IcpOptions {
   /// applies to each level [points]; 0 = one level.
   int coarse_source_points = 2000;
   // --- matcher
-  int normal_neighbors = 10;  ///< neighbours used to estimate target normals (>= 3)
+  int normal_neighbors = 10;  ///< neighbours of a plane: its normal and the centroid it passes through (>= 3)
   // --- outlier rejection (overlap-aware: a partial overlap must not pull the estimate)
   /// Correspondences farther apart than this are rejected [target units]; 0 = no fixed limit.
   double max_correspondence_distance = 0.0;
@@ -89,9 +89,10 @@ struct IcpOptions {
   // --- error minimisation
   ErrorMetric error_metric = ErrorMetric::kPointToPlane;
   /// Estimate a similarity (scale) instead of a rigid transform. With point_to_plane the scale's
-  /// estimating equation is corrected for the source points' own noise, which otherwise shrinks
-  /// the source (the share φ of the residuals' variance that the scaled source noise makes, from
-  /// the two clouds' surfaceThickness2()); point_to_point has no such correction.
+  /// estimating equation is corrected for the moving points' own noise, which otherwise shrinks
+  /// the source (the share φ of each residual's variance that the scaled source noise makes,
+  /// from the two clouds' surfaceThickness2() and the planes through the centroids of
+  /// normal_neighbors points); point_to_point has no such correction.
   bool estimate_scale = false;
   /// Largest relative scale change in one iteration, in (0, 1) [-].
   double max_scale_step = 0.1;

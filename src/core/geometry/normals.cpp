@@ -12,13 +12,14 @@ namespace {
 // Unit normal of the k nearest neighbours of a point (smallest PCA axis); zero with < 3. With
 // `thickness2`, the neighbours' variance along it.
 Eigen::Vector3d normalAt(const KdTree& tree, const Eigen::Vector3d& query, int k, std::vector<Eigen::Index>* idx,
-                         std::vector<double>* d2, double* thickness2 = nullptr) {
+                         std::vector<double>* d2, double* thickness2 = nullptr, Eigen::Vector3d* mean_out = nullptr) {
   const Cloud& pts = tree.points();
   tree.knn(query, k, idx, d2);
   if (idx->size() < 3) return Eigen::Vector3d::Zero();
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   for (Eigen::Index j : *idx) mean += pts.col(j);
   mean /= static_cast<double>(idx->size());
+  if (mean_out != nullptr) *mean_out = mean;
   Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
   for (Eigen::Index j : *idx) {
     const Eigen::Vector3d d = pts.col(j) - mean;
@@ -45,17 +46,21 @@ Cloud estimateNormals(const KdTree& tree, int k) {
   return normals;
 }
 
-Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k) {
+Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k, Cloud* centroids) {
   const Cloud& pts = tree.points();
   const auto n = static_cast<Eigen::Index>(indices.size());
   Cloud normals = Cloud::Zero(3, n);
+  if (centroids != nullptr) *centroids = Cloud::Zero(3, n);
 #pragma omp parallel
   {
     std::vector<Eigen::Index> idx;
     std::vector<double> d2;
+    Eigen::Vector3d mean;
 #pragma omp for schedule(dynamic, 256)
     for (Eigen::Index i = 0; i < n; ++i) {
-      normals.col(i) = normalAt(tree, pts.col(indices[static_cast<std::size_t>(i)]), k, &idx, &d2);
+      const Eigen::Vector3d p = pts.col(indices[static_cast<std::size_t>(i)]);
+      normals.col(i) = normalAt(tree, p, k, &idx, &d2, nullptr, &mean);
+      if (centroids != nullptr) centroids->col(i) = normals.col(i).squaredNorm() > 0.0 ? mean : p;
     }
   }
   return normals;

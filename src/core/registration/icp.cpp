@@ -122,42 +122,59 @@ std::vector<Match> reverseMatchAndReject(const Cloud& moved, const MatchContext&
 }
 
 // Point-to-plane correspondences of one iteration, forward (target normals) and reverse (the
-// source points' normals, rotated into the target frame) together.
+// source points' normals, rotated into the target frame) together. Each residual is
+// n·(moving - fixed): `moving` is in the moved source (the point, or for a reverse entry the
+// plane's point), `fixed` in the target.
 struct PlaneSet {
   std::vector<Eigen::Index> source, target;
-  std::vector<Eigen::Vector3d> normal;
+  std::vector<Eigen::Vector3d> normal, moving, fixed;
+  std::vector<char> reversed;  // the plane is the source's
   std::vector<double> weight, d2;
   double spread = 0.0;
   std::size_t size() const { return source.size(); }
+  double residual(std::size_t k) const { return normal[k].dot(moving[k] - fixed[k]); }
 };
 
-PlaneSet planeSet(const std::vector<Match>& forward, const Cloud& target_normals, const std::vector<Match>& reverse,
-                  const Cloud* source_normals, const Eigen::Matrix3d& rotation) {
+PlaneSet planeSet(const Cloud& moved, const Cloud& target, const std::vector<Match>& forward,
+                  const Cloud& target_normals, const std::vector<Match>& reverse, const Cloud* source_normals,
+                  const Eigen::Matrix3d& rotation) {
   PlaneSet p;
-  for (const Match& m : forward) {
+  auto add = [&](const Match& m, const Eigen::Vector3d& n, bool reversed) {
     p.source.push_back(m.source);
     p.target.push_back(m.target);
-    p.normal.push_back(target_normals.col(m.target));
+    p.normal.push_back(n);
+    p.moving.push_back(moved.col(m.source));
+    p.fixed.push_back(target.col(m.target));
+    p.reversed.push_back(reversed ? 1 : 0);
     p.weight.push_back(1.0);
     p.d2.push_back(m.d2);
-  }
+  };
+  for (const Match& m : forward) add(m, target_normals.col(m.target), false);
   if (source_normals) {
-    for (const Match& m : reverse) {
-      p.source.push_back(m.source);
-      p.target.push_back(m.target);
-      p.normal.push_back(rotation * source_normals->col(m.source));
-      p.weight.push_back(1.0);
-      p.d2.push_back(m.d2);
-    }
+    for (const Match& m : reverse) add(m, rotation * source_normals->col(m.source), true);
   }
   return p;
 }
 
+// Each plane's point moved to the centroid of the plane's neighbours (the target's for forward
+// entries, the source's, moved by `current`, for reverse ones): the plane through a point's k
+// neighbours carries a k-th of one point's noise along the normal.
+void planesThroughCentroids(const Cloud& target_centroids, const Cloud* source_centroids, const Sim3& current,
+                            PlaneSet* p) {
+  for (std::size_t k = 0; k < p->size(); ++k) {
+    if (p->reversed[k]) {
+      if (source_centroids) p->moving[k] = current.apply(Eigen::Vector3d(source_centroids->col(p->source[k])));
+    } else {
+      p->fixed[k] = target_centroids.col(p->target[k]);
+    }
+  }
+}
+
 // The kernel's IRLS weights on a plane set (see applyKernel()).
-void applyPlaneKernel(const Cloud& moved, const Cloud& target, const IcpOptions& o, double spacing, PlaneSet* p) {
+void applyPlaneKernel(const IcpOptions& o, double spacing, PlaneSet* p) {
   if (p->size() == 0) return;
   std::vector<double> r(p->size());
-  for (std::size_t k = 0; k < p->size(); ++k) r[k] = p->normal[k].dot(moved.col(p->source[k]) - target.col(p->target[k]));
+  for (std::size_t k = 0; k < p->size(); ++k) r[k] = p->residual(k);
   const double center = median(r);
   std::vector<double> dev(r.size());
   for (std::size_t k = 0; k < r.size(); ++k) dev[k] = std::abs(r[k] - center);
@@ -230,44 +247,51 @@ void addAnchors(const std::vector<PointMatch3>& anchors, const Sim3& current, co
   }
 }
 
+// The share of a residual's variance that is the moving point's own noise, for forward and
+// reverse entries (see pointToPlaneStep()).
+struct NoiseShare {
+  double forward = 0.0, reverse = 0.0;
+};
+
 // One weighted point-to-plane Gauss-Newton step (residuals weighted by w / σ², σ the residual
-// spread), linearised about the centroid c of the moved points, with the anchors. Returns the
+// spread), linearised about the centroid c of the moving points, with the anchors. Returns the
 // incremental similarity in the target frame.
 //
-// The scale's estimating equation is corrected for the source points' own noise (errors in
-// variables). A source point's noise ε (times the scale) is in both its residual r and its
+// The scale's estimating equation is corrected for the moving points' own noise (errors in
+// variables). A moving point's noise ε (times the scale) is in both its residual r and its
 // lever arm n·(y - c), so even at the true pose Σ w r n·(y - c) has the expected value
-// Σ w s²σ_s², and the plain Gauss-Newton fixed point shrinks the source: shrinking it shrinks
-// its noise in the residuals. With φ = s²σ_s² / (s²σ_s² + σ_t²), the share of a residual's
-// variance that is the scaled source noise (`source_noise_fraction`), that expectation is
-// φ Σ w r², which is subtracted: the gradient of Σ w r² / (σ_t² + s²σ_s²), whose expected value
-// is least at the truth. σ_s² and σ_t² are the clouds' surfaceThickness2() (same k, so the
-// ratio compares their noise; the target in target units, the source's times s²). On simulated
+// Σ w s²σ_y², and the plain Gauss-Newton fixed point shrinks the source: shrinking it shrinks
+// its noise in the residuals. With φ the share of a residual's variance that is the moving
+// point's noise (`phi`), that expectation is Σ φ w r², which is subtracted: the gradient of
+// Σ w r² / var(r), whose expected value is least at the truth. Every plane passes through the
+// centroid of its point's k neighbours, which carries a k-th of one point's noise along the
+// normal, so φ = s²σ_s² / (s²σ_s² + σ_t²/k) for a source point against a target plane and
+// (s²σ_s²/k) / (s²σ_s²/k + σ_t²) for a source plane against a target point. σ_s² and σ_t² are the
+// clouds' surfaceThickness2() (same k, so their ratio compares the noise). On simulated
 // semi-dense maps (60 % overlap, no drift) started at the truth, the scale ICP drifted -0.54 %
-// at inverse-depth noise 0.01 and -4.0 % at 0.03 without it, -0.18 % and -1.1 % with it (φ
-// measured 0.56). Not all of the pull is removed: the nearest target point is chosen partly by
-// the noise itself, which this first-order model does not describe (φ = 0.75 would cancel it
-// there, but nothing in the data measures that).
-Sim3 pointToPlaneStep(const Cloud& moved, const Cloud& target, const PlaneSet& m,
-                      const std::vector<PointMatch3>* anchors, const Sim3& current, bool with_scale,
-                      double max_log_scale_step, double source_noise_fraction) {
+// at inverse-depth noise 0.01 and -4.0 % at 0.03 with no correction; -0.18 % and -1.1 % with
+// planes through the matched points themselves and one φ for both directions; -0.11 % and
+// -0.47 % now. A residual against the matched point keeps that point's whole noise, and the
+// nearest point is chosen partly by its own noise, which a plane through k neighbours averages
+// out.
+Sim3 pointToPlaneStep(const PlaneSet& m, const std::vector<PointMatch3>* anchors, const Sim3& current,
+                      bool with_scale, double max_log_scale_step, const NoiseShare& phi) {
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  for (Eigen::Index i : m.source) c += moved.col(i);
+  for (const Eigen::Vector3d& y : m.moving) c += y;
   c /= static_cast<double>(m.size());
   Eigen::Matrix<double, 7, 7> h = Eigen::Matrix<double, 7, 7>::Zero();
   Eigen::Matrix<double, 7, 1> g = Eigen::Matrix<double, 7, 1>::Zero();
   const double inv_var = 1.0 / (m.spread * m.spread);
   for (std::size_t k = 0; k < m.size(); ++k) {
-    const Eigen::Vector3d y = moved.col(m.source[k]);
     const Eigen::Vector3d& n = m.normal[k];
-    const Eigen::Vector3d a = y - c;
+    const Eigen::Vector3d a = m.moving[k] - c;
     Eigen::Matrix<double, 7, 1> j;
     j << n, a.cross(n), n.dot(a);
-    const double r = n.dot(y - target.col(m.target[k]));
+    const double r = m.residual(k);
     const double w = m.weight[k] * inv_var;
     h.noalias() += w * j * j.transpose();
     g.noalias() += w * j * r;
-    g(6) -= source_noise_fraction * w * r * r;
+    g(6) -= (m.reversed[k] ? phi.reverse : phi.forward) * w * r * r;
   }
   if (anchors) addAnchors(*anchors, current, c, &h, &g);
   Eigen::Matrix<double, 7, 1> delta = Eigen::Matrix<double, 7, 1>::Zero();
@@ -311,7 +335,11 @@ Sim3 pointToPointStep(const Cloud& moved, const Cloud& target, const std::vector
 class LazyNormals {
  public:
   LazyNormals(const KdTree& tree, int k)
-      : tree_(tree), k_(k), normals_(Cloud::Zero(3, tree.size())), known_(static_cast<std::size_t>(tree.size()), 0) {}
+      : tree_(tree),
+        k_(k),
+        normals_(Cloud::Zero(3, tree.size())),
+        centroids_(tree.points()),
+        known_(static_cast<std::size_t>(tree.size()), 0) {}
 
   // Makes sure every matched target point has its normal.
   void ensure(const std::vector<Match>& matches) {
@@ -323,9 +351,7 @@ class LazyNormals {
         missing.push_back(m.target);
       }
     }
-    if (missing.empty()) return;
-    const Cloud fresh = estimateNormalsAt(tree_, missing, k_);
-    for (std::size_t i = 0; i < missing.size(); ++i) normals_.col(missing[i]) = fresh.col(static_cast<Eigen::Index>(i));
+    fill(missing);
   }
 
   // Makes sure the given points have their normals.
@@ -338,17 +364,28 @@ class LazyNormals {
         missing.push_back(i);
       }
     }
-    if (missing.empty()) return;
-    const Cloud fresh = estimateNormalsAt(tree_, missing, k_);
-    for (std::size_t i = 0; i < missing.size(); ++i) normals_.col(missing[i]) = fresh.col(static_cast<Eigen::Index>(i));
+    fill(missing);
   }
 
   const Cloud& normals() const { return normals_; }
+  // Centroid of each known point's neighbours (the point itself where its normal is zero).
+  const Cloud& centroids() const { return centroids_; }
 
  private:
+  void fill(const std::vector<Eigen::Index>& missing) {
+    if (missing.empty()) return;
+    Cloud centroids;
+    const Cloud fresh = estimateNormalsAt(tree_, missing, k_, &centroids);
+    for (std::size_t i = 0; i < missing.size(); ++i) {
+      normals_.col(missing[i]) = fresh.col(static_cast<Eigen::Index>(i));
+      centroids_.col(missing[i]) = centroids.col(static_cast<Eigen::Index>(i));
+    }
+  }
+
   const KdTree& tree_;
   int k_;
   Cloud normals_;
+  Cloud centroids_;
   std::vector<char> known_;
 };
 
@@ -394,7 +431,7 @@ const ParamSchema<IcpOptions>& paramSchema<IcpOptions>() {
       {"sampling.coarse_source_points", &O::coarse_source_points, R::atLeast(0), "points",
        "coarse-to-fine: iterate first on this many source points, then 4x as many, ... (10x looser stop check, scale "
        "kept), then on the whole sample; 0 = one level"},
-      {"matcher.normal_neighbors", &O::normal_neighbors, R::atLeast(3), "", "neighbours for the target normals"},
+      {"matcher.normal_neighbors", &O::normal_neighbors, R::atLeast(3), "", "neighbours of each plane: its normal and the centroid it passes through"},
       {"outlier_rejection.max_correspondence_distance", &O::max_correspondence_distance, R::atLeast(0), "target units",
        "pairs farther apart are rejected; 0 = no fixed limit"},
       {"outlier_rejection.reciprocal", &O::reciprocal, R::any(), "",
@@ -581,12 +618,23 @@ Sim3 levelStep(const Cloud& moved, const MatchContext& ctx, const LevelEnv& env,
       for (const Match& r : reverse) used.push_back(r.source);
       level.normals->ensureIndices(used);
     }
-    PlaneSet set = planeSet(m, env.normals.normals(), reverse, symmetric ? &level.normals->normals() : nullptr,
-                            current.rotation());
-    applyPlaneKernel(moved, target, o, ctx.spacing, &set);
-    const double scaled2 = current.scale() * current.scale() * level.thickness2;
-    const double phi = scaled2 + env.target_thickness2 > 0.0 ? scaled2 / (scaled2 + env.target_thickness2) : 0.0;
-    step = pointToPlaneStep(moved, target, set, env.anchors, current, o.estimate_scale, max_log_step, phi);
+    PlaneSet set = planeSet(moved, target, m, env.normals.normals(), reverse,
+                            symmetric ? &level.normals->normals() : nullptr, current.rotation());
+    // Planes through the neighbours' centroids; the moving point's share of a residual's
+    // variance: the source point's own noise against a target plane that carries a k-th of
+    // the target's (forward), a source plane with a k-th of the source's against a whole
+    // target point (reverse).
+    planesThroughCentroids(env.normals.centroids(), symmetric ? &level.normals->centroids() : nullptr, current, &set);
+    const double source2 = current.scale() * current.scale() * level.thickness2;
+    const double target2 = env.target_thickness2;
+    const double k = o.normal_neighbors;
+    NoiseShare phi;
+    if (source2 > 0.0) {
+      phi.forward = source2 / (source2 + target2 / k);
+      phi.reverse = (source2 / k) / (source2 / k + target2);
+    }
+    applyPlaneKernel(o, ctx.spacing, &set);
+    step = pointToPlaneStep(set, env.anchors, current, o.estimate_scale, max_log_step, phi);
   }
   return step;
 }
@@ -867,11 +915,11 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
     for (const Match& r : reverse) used.push_back(r.source);
     source_normals->ensureIndices(used);
   }
-  PlaneSet set = planeSet(m, normals.normals(), reverse, symmetric ? &source_normals->normals() : nullptr,
-                          current.rotation());
+  PlaneSet set = planeSet(moved, target, m, normals.normals(), reverse,
+                          symmetric ? &source_normals->normals() : nullptr, current.rotation());
   double spread = 0.0;
   if (plane) {
-    applyPlaneKernel(moved, target, o, ctx.spacing, &set);
+    applyPlaneKernel(o, ctx.spacing, &set);
     spread = set.spread;
   } else {
     spread = applyKernel(moved, target, nullptr, o, ctx.spacing, &m);
