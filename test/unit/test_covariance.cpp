@@ -181,9 +181,10 @@ Anees rematchedAnees(int points, int trials, unsigned seed) {
 
 // The goal, ANEES in [0.8, 1.25], is measured by make bench over more trials. Over 60 trials
 // the ANEES itself scatters by about ±0.2 from seed to seed, so these regression checks pool
-// 60-100 trials. Measured here (blocks): 0.69 at 2k points, 1.25 at 10k (before the pairs'
-// shared noise was measured, Correspondences::redundancy, they were 0.83 and 1.51: the estimate
-// got more over-confident the denser the clouds). At 2k points (1 cm noise on about 10 cm
+// 60-100 trials. Measured here (blocks): 0.72 at 2k points, 1.12 at 10k (0.69 and 1.25 with
+// planes through the matched points instead of their neighbours' centroids; before the pairs'
+// shared noise was measured, Correspondences::redundancy, 0.83 and 1.51: the estimate got more
+// over-confident the denser the clouds). At 2k points (1 cm noise on about 10 cm
 // spacing) the residuals also hold how a sparse sample misses curved surfaces and edges, which
 // inflates the noise estimate more than it moves the pose: the covariance errs on the wide side
 // there, never the confident one.

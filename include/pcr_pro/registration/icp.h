@@ -55,7 +55,8 @@ struct IcpOptions {
   /// applies to each level [points]; 0 = one level.
   int coarse_source_points = 2000;
   // --- matcher
-  int normal_neighbors = 10;  ///< neighbours of a plane: its normal and the centroid it passes through (>= 3)
+  /// Neighbours of a plane (>= 3): its normal, and the centroid it passes through.
+  int normal_neighbors = 10;
   // --- outlier rejection (overlap-aware: a partial overlap must not pull the estimate)
   /// Correspondences farther apart than this are rejected [target units]; 0 = no fixed limit.
   double max_correspondence_distance = 0.0;

@@ -431,7 +431,8 @@ const ParamSchema<IcpOptions>& paramSchema<IcpOptions>() {
       {"sampling.coarse_source_points", &O::coarse_source_points, R::atLeast(0), "points",
        "coarse-to-fine: iterate first on this many source points, then 4x as many, ... (10x looser stop check, scale "
        "kept), then on the whole sample; 0 = one level"},
-      {"matcher.normal_neighbors", &O::normal_neighbors, R::atLeast(3), "", "neighbours of each plane: its normal and the centroid it passes through"},
+      {"matcher.normal_neighbors", &O::normal_neighbors, R::atLeast(3), "",
+       "neighbours of each plane: its normal and the centroid it passes through"},
       {"outlier_rejection.max_correspondence_distance", &O::max_correspondence_distance, R::atLeast(0), "target units",
        "pairs farther apart are rejected; 0 = no fixed limit"},
       {"outlier_rejection.reciprocal", &O::reciprocal, R::any(), "",
