@@ -222,7 +222,7 @@ TEST_F(SimWorld, IcpStartedAtTheTruthStaysThereAtPartialOverlap) {
 // arms, pulled it down). Bounds: the README's 1 deg / 1.5 % scale, and the scale within three of
 // its own reported standard deviations (measured: 0.15 deg / -0.21 % = 0.8 sd, and 0.60 deg /
 // -0.47 % = 1.8 sd; with planes through the matched points instead of their neighbours'
-// centroids the second was -1.1 %, about 4 sd).
+// centroids the second was -1.1 %, beyond three times the 0.27 % reported there now).
 TEST(IcpScale, StartedAtTheTruthItStaysOnLowOverlapAndNoisySemiDenseMaps) {
   for (const auto& [seed, overlap, noise] : {std::tuple<int, double, double>{1001, 0.35, 0.01}, {1000, 0.6, 0.03}}) {
     SimulatorOptions w = test::mergeTestWorld(static_cast<std::uint64_t>(seed), 2, overlap);
