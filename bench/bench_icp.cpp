@@ -153,15 +153,22 @@ void runCase(const Case& k, int repeats) {
   IcpOptions same;  // the same algorithm as PCL's: point-to-point, distance rejection only
   same.error_metric = ErrorMetric::kPointToPoint;
   same.trim_ratio = 1.0;
+  // The overlap-aware checks that are on by default (issue 12) are not PCL's: with them this row
+  // was no longer the same algorithm, and converged more slowly (1.45 deg off the car scans'
+  // truth after 50 iterations, against 0.095 deg in 38 without them).
+  same.reciprocal = false;
+  same.symmetric = false;
+  same.adaptive_distance_factor = 0.0;
+  same.robust_kernel = RobustKernel::kNone;
   same.max_correspondence_distance = k.max_distance;
   same.max_iterations = iterations;
   same.max_source_points = 0;      // every point, as PCL
   same.coarse_source_points = 0;   // one level, as PCL
   same.extrapolation = false;      // plain iterations, as PCL
-  IcpOptions defaults;  // our default chain: point-to-plane, trimmed 0.8
+  IcpOptions defaults;  // our default chain: symmetric point-to-plane, reciprocal, adaptive gate, Cauchy kernel
   defaults.max_iterations = iterations;
   for (int threads : {1, 2}) ours("ours, point-to-point, same thresholds", same, threads);
-  for (int threads : {1, 2}) ours("ours, default (point-to-plane, trim 0.8)", defaults, threads);
+  for (int threads : {1, 2}) ours("ours, default (symmetric point-to-plane, overlap-aware)", defaults, threads);
 
   std::printf("| method | ICP time [ms] | speed-up vs PCL | iterations | rotation error [deg] | translation error | "
               "covariance [ms] |\n|---|---|---|---|---|---|---|\n");
