@@ -28,9 +28,10 @@
  *   over three seeds and 80 trials each (ANEES 0.88–1.13 for 2k–10k points at 1 cm noise). Limitation: a bias that both
  *   halves share (noise close to the point spacing, with trimming and noisy normals) is not seen
  *   by a split; at 3 cm noise on 10k points in a 4 m room the calibrated ANEES is about 5.
- *   Since the ICP's planes pass through their neighbours' centroids, the halves' sparse
- *   neighbourhoods disagree more than the full registration errs, and the same Monte-Carlo gives
- *   0.54 / 0.62 / 0.71 at 2k / 5k / 10k points (too wide; it gave 0.80 / 1.10 / 1.25 before).
+ *   Since the ICP's planes pass through their neighbours' centroids the same Monte-Carlo gives
+ *   0.54 / 0.62 / 0.71 at 2k / 5k / 10k points (too wide; 0.80 / 1.10 / 1.25 before), its mean
+ *   factor 1.6-1.7: the full registration's error fell more than the halves' disagreement
+ *   (probably because a half's sparser neighbourhoods gain less from the centroids; not measured).
  * - blocks (default): the closed form, enlarged to cover the spread of the estimate between
  *   spatial blocks of the correspondences (and the anchor groups), see blockSpreadCovariance();
  *   on independent noise it equals the closed form (Monte-Carlo 0.83 / 0.97 / 1.12).
