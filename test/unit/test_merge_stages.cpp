@@ -197,6 +197,61 @@ TEST_F(SimWorld, APairOfTheWrongKeyframesIsDroppedAndReported) {
   EXPECT_LT(std::abs(kf.estimate.scale() / truth.scale() - 1.0), 0.005) << notes;
 }
 
+// When no verified pair has the depth matches for a scale of its own (keyframe depth from a
+// semi-dense map cloud covers few SIFT keypoints), their depth matches pooled determine the
+// similarity together. Here every pair is made too sparse by asking each for one match more than
+// the richest pair has; before the joint estimate the merge stopped at NOT_ENOUGH_MATCHES.
+TEST_F(SimWorld, PairsTooSparseForTheirOwnScaleArePooledJointly) {
+  MergeOptions options;
+  const FrontEndResult front = KeyframeFrontEnd(options).run(map(1), map(0), MergeRequest());
+  ASSERT_GE(front.verified, 2);
+  const KeyframeEstimate usual = SimilarityInitializer(options).run(map(1), map(0), front);
+  int richest = 0;
+  for (const PairEvidence& e : usual.pairs) richest = std::max(richest, e.depth_matches);
+  options.scale_estimation.min_inliers = richest + 1;
+  const KeyframeEstimate kf = SimilarityInitializer(options).run(map(1), map(0), front);
+  ASSERT_EQ(kf.status, Status::kOk) << kf.message;
+  std::string notes;
+  int jointly = 0;
+  for (const PairEvidence& e : kf.pairs) {
+    EXPECT_FALSE(e.has_estimate) << e.note;
+    notes += "\n" + std::to_string(e.source_keyframe) + "->" + std::to_string(e.target_keyframe) + ": " + e.note;
+    if (e.used) {
+      ++jointly;
+      EXPECT_NE(e.note.find("used jointly"), std::string::npos) << e.note;
+    }
+  }
+  EXPECT_GE(jointly, 2) << notes;
+  EXPECT_EQ(kf.used_pairs, jointly);
+  EXPECT_GE(static_cast<int>(kf.matches.size()), options.scale_estimation.min_inliers) << notes;
+  ASSERT_GE(kf.anchor, 0);
+  EXPECT_TRUE(kf.pairs[static_cast<std::size_t>(kf.anchor)].used);
+  const Sim3& truth = sim_->pair(0, 1).target_source;
+  EXPECT_LT(rotationDistance(kf.estimate.rotation(), truth.rotation()), test::rad(0.5)) << notes;
+  EXPECT_LT(std::abs(kf.estimate.scale() / truth.scale() - 1.0), 0.005) << notes;
+  ASSERT_TRUE(kf.covariance.allFinite());
+  // Its covariance covers its error: chi-square 7 DoF, 99.9 %.
+  EXPECT_LT(nees7(kf.estimate, truth, kf.covariance), 24.3);
+  // The whole merge goes on from it.
+  const MergeResult r = mergeMaps(map(1), map(0), MergeRequest(), options);
+  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
+  EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.0));
+}
+
+// One pair cannot give a scale jointly: pooling needs matches from two pairs at least.
+TEST_F(SimWorld, OnePairTooSparseForItsOwnScaleIsNotPooledAlone) {
+  MergeOptions options;
+  FrontEndResult front = KeyframeFrontEnd(options).run(map(1), map(0), MergeRequest());
+  ASSERT_GE(front.verified, 1);
+  front.verified = 1;
+  const KeyframeEstimate usual = SimilarityInitializer(options).run(map(1), map(0), front);
+  ASSERT_EQ(usual.status, Status::kOk) << usual.message;
+  options.scale_estimation.min_inliers = usual.pairs.front().depth_matches + 1;
+  const KeyframeEstimate kf = SimilarityInitializer(options).run(map(1), map(0), front);
+  EXPECT_NE(kf.status, Status::kOk) << kf.message;
+  EXPECT_NE(kf.message.find("nor did the pairs' depth matches pooled"), std::string::npos) << kf.message;
+}
+
 TEST_F(SimWorld, IcpStartedAtTheTruthStaysThereAtPartialOverlap) {
   // pcr_pro_icp's path (registerClouds, no keyframes): the overlap-aware rejection must keep a
   // partial overlap from pulling the estimate (a trimmed ICP pulled the scale to its clamp here).

@@ -22,8 +22,9 @@ inline void setSeed(FilterChainOptions* filters, std::uint64_t seed) {
 /**
  * @brief Sets the seed of every randomised stage of a configuration: the descriptor index of the
  * keyframe matching, the relative pose RANSAC and the configured random filter steps
- * (random_sampling, max_points). The ICP's source sampling and the covariance calibration draw
- * from fixed seeds of their own. Equal inputs, options and seed give bit-for-bit equal merges.
+ * (random_sampling, max_points). The ICP's source sampling, the covariance calibration and the
+ * keyframe stage's joint estimate (when it has more than 30 matches) draw from fixed seeds of
+ * their own. Equal inputs, options and seed give bit-for-bit equal merges.
  * @param[in,out] options configuration to seed
  * @param[in] seed the seed [-]; the filter steps take its low 32 bits
  */

@@ -4,7 +4,9 @@
  * depth, the Kalman-filter scale and the pair's own initial Sim(3); then one robust Sim(3) from
  * the 3D-3D matches of all pairs pooled (with each pair's relative-pose rotation), a consistency
  * check of the pairs against each other (a pair that disagrees beyond its uncertainty is
- * dropped and reported), and a covariance that holds the pairs' disagreement.
+ * dropped and reported), and a covariance that holds the pairs' disagreement. When no pair has
+ * the depth matches for a scale of its own, their depth matches pooled give one joint estimate
+ * (see SimilarityInitializer::run()).
  */
 #pragma once
 
@@ -34,7 +36,7 @@ struct PairEvidence {
   bool has_estimate = false;  ///< the scale filter succeeded: estimate and covariance are set
   Sim3 estimate;              ///< the pair's own S_target_source
   Matrix7d covariance = Matrix7d::Zero();  ///< of estimate (similarity_fit.h convention)
-  bool used = false;     ///< part of the pooled estimate
+  bool used = false;     ///< part of the pooled (or joint) estimate
   /// has an estimate and lies within merge.local_keyframes of the best pair: a candidate for pooling
   bool in_neighbourhood = false;
   std::string note;      ///< why not used, or how it was used
@@ -85,6 +87,13 @@ class SimilarityInitializer {
   explicit SimilarityInitializer(const MergeOptions& options);
 
   /**
+   * @brief The keyframe estimate. When no verified pair has the depth matches (relative-pose
+   * inliers with depth on both sides) for a Kalman scale of its own, the depth matches of the
+   * pairs near the best one (merge.local_keyframes) are pooled instead: the similarity through
+   * three of them that the most fit within their noise, then one robust fit over those. It needs
+   * scale_estimation.min_inliers of them from two pairs at least, and a scale within
+   * scale_estimation.max_relative_stddev; its pairs are then used with has_estimate false and a
+   * note that says "used jointly", and its covariance is the fit's.
    * @param[in] source source map (cloud used for keyframes without depth images)
    * @param[in] target target map
    * @param[in] front the front end's pairs (only the verified ones are used)

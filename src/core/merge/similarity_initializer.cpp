@@ -5,6 +5,7 @@
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -12,10 +13,12 @@
 #include <cmath>
 #include <map>
 #include <memory>
+#include <random>
 #include <sstream>
 
 #include "pcr_pro/frontend/keyframe_depth.h"
 #include "pcr_pro/frontend/relative_pose_covariance.h"
+#include "pcr_pro/registration/icp.h"
 
 namespace pcr_pro {
 namespace {
@@ -118,9 +121,17 @@ std::string rotationDisagreement(const std::vector<PointMatch3>& matches, const 
          " > " + fmt(kRotationAgreementChi2) + "): a planar twin or a wrong match set";
 }
 
-// The pair's Kalman scale, own estimate and map-frame matches.
+// A pair's relative-pose inliers with depth on both sides, as map points with each side's
+// covariance in its map's frame (map units): what the joint estimate (jointEstimate()) pools
+// when no pair has enough of them for a scale of its own.
+struct DepthMatches {
+  std::vector<Eigen::Vector3d> source, target;
+  std::vector<Eigen::Matrix3d> cov_source, cov_target;
+};
+
+// The pair's Kalman scale, own estimate and map-frame matches; *raw gets every depth match.
 PairEvidence pairEvidence(const CandidatePair& c, int group, const AgentMap& source, const AgentMap& target,
-                          DepthLookup* depths, const MergeOptions& o) {
+                          DepthLookup* depths, const MergeOptions& o, DepthMatches* raw) {
   PairEvidence e;
   e.source_keyframe = c.source->id;
   e.target_keyframe = c.target->id;
@@ -143,6 +154,15 @@ PairEvidence pairEvidence(const CandidatePair& c, int group, const AgentMap& sou
     }
   }
   e.depth_matches = static_cast<int>(ps.size());
+  {
+    const Sim3 cam_t = rigidPart(c.target->pose), cam_s = rigidPart(c.source->pose);
+    for (std::size_t k = 0; k < ps.size(); ++k) {
+      raw->source.push_back(cam_s.apply(ps[k]));
+      raw->target.push_back(cam_t.apply(pt[k]));
+      raw->cov_source.push_back(cam_s.rotation() * cov_s[k] * cam_s.rotation().transpose());
+      raw->cov_target.push_back(cam_t.rotation() * cov_t[k] * cam_t.rotation().transpose());
+    }
+  }
   e.scale = estimateScale(ps, pt, c.pose.rotation, c.pose.translation_direction, o.scale_estimation, &cov_s, &cov_t);
   if (e.scale.status != Status::kOk) {
     e.note = "scale from " + std::to_string(e.depth_matches) + " matches with depth on both sides: " + e.scale.message;
@@ -523,6 +543,177 @@ std::vector<int> agreeWith(const std::vector<Vector7d>& v, const std::vector<Mat
   return use;
 }
 
+// The residual covariance of depth match k of `m` under a similarity of scale s and rotation r.
+Eigen::Matrix3d matchCovariance(const DepthMatches& m, std::size_t k, double s, const Eigen::Matrix3d& r) {
+  return m.cov_target[k] + s * s * r * m.cov_source[k] * r.transpose();
+}
+
+// Hypotheses the joint estimate tries at most (every three of its matches up to 30 matches), and
+// the fixed seed of its draws beyond that.
+constexpr std::size_t kJointHypotheses = 4060;
+constexpr std::uint32_t kJointSeed = 20261130u;
+
+// The joint estimate, for when no verified pair has enough depth matches (relative-pose inliers
+// with depth on both sides) for its own Kalman scale. In the maps' frames every pair's depth
+// matches obey the same similarity (up to each map's drift), so a few from each of several pairs
+// determine it together. Keyframe depth taken from a semi-dense map cloud covers few of SIFT's
+// keypoints: on 7-Scenes without depth images, 4 of 12 overlapping pairs of maps had 0-6 such
+// matches in each of their 4-15 verified keyframe pairs, and were refused (NOT_ENOUGH_MATCHES).
+// - Pairs: those with depth matches within merge.local_keyframes of the first of them (the most
+//   relative-pose inliers), as for the pooled estimate.
+// - Hypotheses: the similarity through three of their matches (every three up to 30 matches,
+//   kJointHypotheses drawn beyond) whose triangle is wider than their noise; the one that the
+//   most matches fit within their noise (χ² 3 DoF, SimilarityFitOptions::outlier_chi2) wins,
+//   then one robust fit over those matches.
+// - The relative poses' rotations are not used: on those 7-Scenes maps the rotations of pairs
+//   of one merge disagreed by 2-50 deg, far beyond their own 0.2-4 deg, which would make the
+//   estimate as over-confident (with them, 2 of the 3 cases that then pooled were refused
+//   because the refinement disagreed with the keyframe matches at χ² 120-127).
+// It needs scale_estimation.min_inliers matches in the fit from two pairs at least (no single
+// pair could give a scale alone), and the scale's relative standard deviation within
+// scale_estimation.max_relative_stddev: the limits a pair's own scale has. Its covariance is the
+// fit's (which covers the spread between pairs with three or more). The pairs have no estimates
+// of their own, so there is no between-pair spread to add and nothing to arbitrate between.
+// @return whether *out now holds the estimate (status kOk); *out is unchanged otherwise
+bool jointEstimate(const AgentMap& source, const AgentMap& target, const std::vector<DepthMatches>& raw,
+                   const MergeOptions& o, KeyframeEstimate* out) {
+  std::vector<PairEvidence> pairs = out->pairs;
+  for (std::size_t b = 0; b < pairs.size(); ++b) pairs[b].used = !raw[b].source.empty();
+  const int distant = keepNeighbourhood(source, target, o.merge.local_keyframes, &pairs);
+  std::vector<std::pair<std::size_t, std::size_t>> all;  // (pair, match)
+  for (std::size_t b = 0; b < pairs.size(); ++b) {
+    if (!pairs[b].used) continue;
+    for (std::size_t k = 0; k < raw[b].source.size(); ++k) all.emplace_back(b, k);
+  }
+  const auto min_inliers = static_cast<std::size_t>(o.scale_estimation.min_inliers);
+  const std::size_t n = all.size();
+  if (n < std::max<std::size_t>(3, min_inliers)) return false;
+  const SimilarityFitOptions fo;
+  // How many matches a similarity fits within their noise, and (to break ties) how closely.
+  const auto score = [&](const Sim3& h, std::vector<bool>* inlier) {
+    double cost = 0.0;
+    int count = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const DepthMatches& m = raw[all[i].first];
+      const std::size_t k = all[i].second;
+      const Eigen::Vector3d r = h.apply(m.source[k]) - m.target[k];
+      double chi2 = r.dot(matchCovariance(m, k, h.scale(), h.rotation()).ldlt().solve(r));
+      if (!std::isfinite(chi2)) chi2 = fo.outlier_chi2 + 1.0;
+      const bool in = chi2 <= fo.outlier_chi2;
+      if (inlier) (*inlier)[i] = in;
+      count += in ? 1 : 0;
+      cost += std::min(chi2, fo.outlier_chi2);
+    }
+    return std::make_pair(count, -cost);
+  };
+  // Every three matches while they are few; beyond, kJointHypotheses threes drawn from a fixed
+  // seed (equal inputs give equal results).
+  std::vector<std::array<std::size_t, 3>> threes;
+  if (n * (n - 1) * (n - 2) / 6 <= kJointHypotheses) {
+    for (std::size_t i = 0; i < n; ++i) {
+      for (std::size_t j = i + 1; j < n; ++j) {
+        for (std::size_t l = j + 1; l < n; ++l) threes.push_back({i, j, l});
+      }
+    }
+  } else {
+    std::mt19937 rng(kJointSeed);
+    std::uniform_int_distribution<std::size_t> pick(0, n - 1);
+    while (threes.size() < kJointHypotheses) {
+      const std::size_t i = pick(rng), j = pick(rng), l = pick(rng);
+      if (i != j && j != l && i != l) threes.push_back({i, j, l});
+    }
+  }
+  std::pair<int, double> best{0, 0.0};
+  Sim3 start;
+  Cloud src(3, 3), dst(3, 3);
+  for (const std::array<std::size_t, 3>& three : threes) {
+    double noise2 = 0.0;
+    for (int c = 0; c < 3; ++c) {
+      const DepthMatches& m = raw[all[three[c]].first];
+      src.col(c) = m.source[all[three[c]].second];
+      dst.col(c) = m.target[all[three[c]].second];
+      noise2 += m.cov_target[all[three[c]].second].trace();
+    }
+    // Three matches whose triangle is no wider than their noise fix no rotation: twice its area
+    // must exceed nine times their summed target variance (sides beyond about three sigma).
+    const Eigen::Vector3d e1 = dst.col(1) - dst.col(0), e2 = dst.col(2) - dst.col(0);
+    if (e1.cross(e2).norm() <= 9.0 * noise2) continue;
+    const Sim3 h = umeyama(src, dst, true);
+    if (!(h.scale() > 0.0) || !h.matrix().allFinite()) continue;
+    const auto s = score(h, nullptr);
+    if (s > best) {
+      best = s;
+      start = h;
+    }
+  }
+  if (static_cast<std::size_t>(best.first) < min_inliers) return false;
+  std::vector<bool> inlier(n, false);
+  score(start, &inlier);
+  std::vector<PointMatch3> matches;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!inlier[i]) continue;
+    const DepthMatches& m = raw[all[i].first];
+    PointMatch3 p;
+    p.source = m.source[all[i].second];
+    p.target = m.target[all[i].second];
+    p.covariance = matchCovariance(m, all[i].second, start.scale(), start.rotation());
+    p.group = static_cast<int>(all[i].first);
+    matches.push_back(p);
+  }
+  const SimilarityFit fit = fitSimilarity(matches, {}, start, fo);
+  if (!fit.ok || !fit.covariance.allFinite() || !fit.estimate.matrix().allFinite()) return false;
+  std::vector<int> per_pair(pairs.size(), 0);
+  std::vector<PointMatch3> kept;
+  for (std::size_t k = 0; k < matches.size(); ++k) {
+    if (!fit.inliers[k]) continue;
+    ++per_pair[static_cast<std::size_t>(matches[k].group)];
+    kept.push_back(matches[k]);
+  }
+  const auto holding = static_cast<int>(std::count_if(per_pair.begin(), per_pair.end(), [](int c) { return c > 0; }));
+  const double relative_stddev = std::sqrt(std::max(0.0, fit.covariance(6, 6)));
+  if (kept.size() < min_inliers || holding < 2 || relative_stddev > o.scale_estimation.max_relative_stddev) {
+    return false;
+  }
+  out->pairs = std::move(pairs);
+  out->matches = std::move(kept);
+  out->fit = fit;
+  out->estimate = fit.estimate;
+  out->mean_covariance = 0.5 * (fit.covariance + fit.covariance.transpose());
+  out->between = Matrix7d::Zero();
+  out->covariance = out->mean_covariance;
+  out->used_pairs = holding;
+  out->distant_pairs = distant;
+  out->dropped_pairs = 0;
+  int most = 0;
+  for (std::size_t b = 0; b < out->pairs.size(); ++b) {
+    PairEvidence& e = out->pairs[b];
+    e.in_neighbourhood = false;  // no estimate of its own to pool around
+    if (!e.used) continue;
+    if (per_pair[b] == 0) {
+      e.used = false;
+      e.note += "; not used jointly: none of its depth matches fits the joint similarity";
+      continue;
+    }
+    e.estimate = fit.estimate;
+    e.covariance = out->covariance;
+    e.matches.clear();
+    for (const PointMatch3& m : out->matches) {
+      if (m.group == static_cast<int>(b)) e.matches.push_back(m);
+    }
+    e.note = "used jointly: " + std::to_string(per_pair[b]) + " of its " + std::to_string(e.depth_matches) +
+             " depth matches fit the similarity of " + std::to_string(holding) + " pairs' matches pooled (alone, " +
+             e.note + ")";
+    if (per_pair[b] > most) {
+      most = per_pair[b];
+      out->anchor = static_cast<int>(b);
+    }
+  }
+  out->status = Status::kOk;
+  out->message = std::to_string(holding) + " keyframe pair(s) pooled jointly (none had the depth matches for a "
+                 "scale of its own), " + std::to_string(out->matches.size()) + " matches";
+  return true;
+}
+
 }  // namespace
 
 SimilarityInitializer::SimilarityInitializer(const MergeOptions& options) : options_(options) { validate(options_); }
@@ -532,13 +723,17 @@ KeyframeEstimate SimilarityInitializer::run(const AgentMap& source, const AgentM
   const auto t0 = Clock::now();
   KeyframeEstimate out;
   DepthLookup depths(options_.keyframe_depth);
+  std::vector<DepthMatches> raw(static_cast<std::size_t>(std::max(0, front.verified)));
   for (int i = 0; i < front.verified; ++i) {
-    out.pairs.push_back(pairEvidence(front.pairs[static_cast<std::size_t>(i)], i, source, target, &depths, options_));
+    out.pairs.push_back(pairEvidence(front.pairs[static_cast<std::size_t>(i)], i, source, target, &depths, options_,
+                                     &raw[static_cast<std::size_t>(i)]));
     out.pairs.back().used = out.pairs.back().has_estimate;
   }
   for (const PairEvidence& e : out.pairs) out.used_pairs += e.used ? 1 : 0;
   if (out.used_pairs == 0) {
-    if (out.pairs.empty()) {
+    if (jointEstimate(source, target, raw, options_, &out)) {
+      // pooled jointly: status, estimate and pairs set
+    } else if (out.pairs.empty()) {
       out.status = Status::kRelativePoseFailed;
       out.message = "no keyframe pair verified";
     } else {
@@ -546,7 +741,8 @@ KeyframeEstimate SimilarityInitializer::run(const AgentMap& source, const AgentM
       out.status = best.scale.status == Status::kOk ? Status::kScaleFailed : best.scale.status;
       out.message = "no verified keyframe pair gave a scale (" + std::to_string(out.pairs.size()) +
                     " tried); best pair source " + std::to_string(best.source_keyframe) + " / target " +
-                    std::to_string(best.target_keyframe) + ", " + std::to_string(best.inliers) + " inliers: " + best.note;
+                    std::to_string(best.target_keyframe) + ", " + std::to_string(best.inliers) + " inliers: " + best.note +
+                    "; nor did the pairs' depth matches pooled";
     }
   } else {
     out.distant_pairs = keepNeighbourhood(source, target, options_.merge.local_keyframes, &out.pairs);
