@@ -238,18 +238,25 @@ TEST_F(SimWorld, PairsTooSparseForTheirOwnScaleArePooledJointly) {
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.0));
 }
 
-// One pair cannot give a scale jointly: pooling needs matches from two pairs at least.
-TEST_F(SimWorld, OnePairTooSparseForItsOwnScaleIsNotPooledAlone) {
+// One pair whose own scale failed gives no joint estimate alone, however many depth matches it
+// has: its scale filter rejected them (here a gate no match passes), and pooling needs matches
+// from two pairs at least. With a second pair the same setting does pool.
+TEST_F(SimWorld, OnePairWhoseScaleFailedIsNotPooledAlone) {
   MergeOptions options;
   FrontEndResult front = KeyframeFrontEnd(options).run(map(1), map(0), MergeRequest());
-  ASSERT_GE(front.verified, 1);
+  ASSERT_GE(front.verified, 2);
+  options.scale_estimation.gating_chi2 = 1e-12;
   front.verified = 1;
-  const KeyframeEstimate usual = SimilarityInitializer(options).run(map(1), map(0), front);
-  ASSERT_EQ(usual.status, Status::kOk) << usual.message;
-  options.scale_estimation.min_inliers = usual.pairs.front().depth_matches + 1;
-  const KeyframeEstimate kf = SimilarityInitializer(options).run(map(1), map(0), front);
-  EXPECT_NE(kf.status, Status::kOk) << kf.message;
-  EXPECT_NE(kf.message.find("nor did the pairs' depth matches pooled"), std::string::npos) << kf.message;
+  const KeyframeEstimate one = SimilarityInitializer(options).run(map(1), map(0), front);
+  ASSERT_EQ(one.pairs.size(), 1u);
+  EXPECT_FALSE(one.pairs.front().has_estimate) << one.pairs.front().note;
+  EXPECT_GE(one.pairs.front().depth_matches, options.scale_estimation.min_inliers);
+  EXPECT_NE(one.status, Status::kOk) << one.message;
+  EXPECT_NE(one.message.find("nor did the pairs' depth matches pooled"), std::string::npos) << one.message;
+  front.verified = 2;
+  const KeyframeEstimate two = SimilarityInitializer(options).run(map(1), map(0), front);
+  EXPECT_EQ(two.status, Status::kOk) << two.message;
+  EXPECT_EQ(two.used_pairs, 2) << two.message;
 }
 
 TEST_F(SimWorld, IcpStartedAtTheTruthStaysThereAtPartialOverlap) {
