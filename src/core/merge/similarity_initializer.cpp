@@ -567,8 +567,10 @@ constexpr std::uint32_t kJointSeed = 20261130u;
 //   then one robust fit over those matches.
 // - The relative poses' rotations are not used: on those 7-Scenes maps the rotations of pairs
 //   of one merge disagreed by 2-50 deg, far beyond their own 0.2-4 deg, which would make the
-//   estimate as over-confident (with them, 2 of the 3 cases that then pooled were refused
-//   because the refinement disagreed with the keyframe matches at χ² 120-127).
+//   estimate as over-confident. With the rotations that agree with the best hypothesis in the
+//   fit, none of the 3 cases that pooled merged; without them one does (overlap_450_860, whose
+//   refinement had disagreed with the keyframe matches at χ² 120), and the other two are
+//   refused as before.
 // It needs scale_estimation.min_inliers matches in the fit from two pairs at least (no single
 // pair could give a scale alone), and the scale's relative standard deviation within
 // scale_estimation.max_relative_stddev: the limits a pair's own scale has. Its covariance is the
