@@ -129,6 +129,21 @@ struct DepthMatches {
   std::vector<Eigen::Matrix3d> cov_source, cov_target;
 };
 
+// The residual covariance of depth match k of `m` under a similarity of scale s and rotation r.
+Eigen::Matrix3d matchCovariance(const DepthMatches& m, std::size_t k, double s, const Eigen::Matrix3d& r) {
+  return m.cov_target[k] + s * s * r * m.cov_source[k] * r.transpose();
+}
+
+// Depth match k of `m` as a point match of group `group`, its covariance at the similarity `at`.
+PointMatch3 pointMatch(const DepthMatches& m, std::size_t k, const Sim3& at, int group) {
+  PointMatch3 p;
+  p.source = m.source[k];
+  p.target = m.target[k];
+  p.covariance = matchCovariance(m, k, at.scale(), at.rotation());
+  p.group = group;
+  return p;
+}
+
 // The pair's Kalman scale, own estimate and map-frame matches; *raw gets every depth match.
 PairEvidence pairEvidence(const CandidatePair& c, int group, const AgentMap& source, const AgentMap& target,
                           DepthLookup* depths, const MergeOptions& o, DepthMatches* raw) {
@@ -154,14 +169,12 @@ PairEvidence pairEvidence(const CandidatePair& c, int group, const AgentMap& sou
     }
   }
   e.depth_matches = static_cast<int>(ps.size());
-  {
-    const Sim3 cam_t = rigidPart(c.target->pose), cam_s = rigidPart(c.source->pose);
-    for (std::size_t k = 0; k < ps.size(); ++k) {
-      raw->source.push_back(cam_s.apply(ps[k]));
-      raw->target.push_back(cam_t.apply(pt[k]));
-      raw->cov_source.push_back(cam_s.rotation() * cov_s[k] * cam_s.rotation().transpose());
-      raw->cov_target.push_back(cam_t.rotation() * cov_t[k] * cam_t.rotation().transpose());
-    }
+  const Sim3 cam_t = rigidPart(c.target->pose), cam_s = rigidPart(c.source->pose);
+  for (std::size_t k = 0; k < ps.size(); ++k) {
+    raw->source.push_back(cam_s.apply(ps[k]));
+    raw->target.push_back(cam_t.apply(pt[k]));
+    raw->cov_source.push_back(cam_s.rotation() * cov_s[k] * cam_s.rotation().transpose());
+    raw->cov_target.push_back(cam_t.rotation() * cov_t[k] * cam_t.rotation().transpose());
   }
   e.scale = estimateScale(ps, pt, c.pose.rotation, c.pose.translation_direction, o.scale_estimation, &cov_s, &cov_t);
   if (e.scale.status != Status::kOk) {
@@ -177,21 +190,10 @@ PairEvidence pairEvidence(const CandidatePair& c, int group, const AgentMap& sou
                      distances.end());
     e.baseline_ratio = std::abs(e.scale.lambda) / distances[distances.size() / 2];
   }
-  const Sim3 cam_t = rigidPart(c.target->pose), cam_s = rigidPart(c.source->pose);
   const Sim3 keyframe_sim(e.scale.scale, c.pose.rotation, e.scale.lambda * c.pose.translation_direction);
   e.estimate = cam_t * keyframe_sim * cam_s.inverse();
-  const double s = e.estimate.scale();
-  const Eigen::Matrix3d& r = e.estimate.rotation();
   for (std::size_t k = 0; k < ps.size(); ++k) {
-    if (!e.scale.inlier_mask[k]) continue;
-    PointMatch3 m;
-    m.source = cam_s.apply(ps[k]);
-    m.target = cam_t.apply(pt[k]);
-    const Eigen::Matrix3d cs = cam_s.rotation() * cov_s[k] * cam_s.rotation().transpose();
-    const Eigen::Matrix3d ct = cam_t.rotation() * cov_t[k] * cam_t.rotation().transpose();
-    m.covariance = ct + s * s * r * cs * r.transpose();
-    m.group = group;
-    e.matches.push_back(m);
+    if (e.scale.inlier_mask[k]) e.matches.push_back(pointMatch(*raw, k, e.estimate, group));
   }
   e.rotation = rotationMeasurement(c, source, target, cam_s, cam_t, o);
   e.rotation.group = group;
@@ -543,11 +545,6 @@ std::vector<int> agreeWith(const std::vector<Vector7d>& v, const std::vector<Mat
   return use;
 }
 
-// The residual covariance of depth match k of `m` under a similarity of scale s and rotation r.
-Eigen::Matrix3d matchCovariance(const DepthMatches& m, std::size_t k, double s, const Eigen::Matrix3d& r) {
-  return m.cov_target[k] + s * s * r * m.cov_source[k] * r.transpose();
-}
-
 // Hypotheses the joint estimate tries at most (every three of its matches up to 30 matches), and
 // the fixed seed of its draws beyond that.
 constexpr std::size_t kJointHypotheses = 4060;
@@ -654,13 +651,7 @@ bool jointEstimate(const AgentMap& source, const AgentMap& target, const std::ve
   std::vector<PointMatch3> matches;
   for (std::size_t i = 0; i < n; ++i) {
     if (!inlier[i]) continue;
-    const DepthMatches& m = raw[all[i].first];
-    PointMatch3 p;
-    p.source = m.source[all[i].second];
-    p.target = m.target[all[i].second];
-    p.covariance = matchCovariance(m, all[i].second, start.scale(), start.rotation());
-    p.group = static_cast<int>(all[i].first);
-    matches.push_back(p);
+    matches.push_back(pointMatch(raw[all[i].first], all[i].second, start, static_cast<int>(all[i].first)));
   }
   const SimilarityFit fit = fitSimilarity(matches, {}, start, fo);
   if (!fit.ok || !fit.covariance.allFinite() || !fit.estimate.matrix().allFinite()) return false;
@@ -732,25 +723,21 @@ KeyframeEstimate SimilarityInitializer::run(const AgentMap& source, const AgentM
     out.pairs.back().used = out.pairs.back().has_estimate;
   }
   for (const PairEvidence& e : out.pairs) out.used_pairs += e.used ? 1 : 0;
-  if (out.used_pairs == 0) {
-    if (jointEstimate(source, target, raw, options_, &out)) {
-      // pooled jointly: status, estimate and pairs set
-    } else if (out.pairs.empty()) {
-      out.status = Status::kRelativePoseFailed;
-      out.message = "no keyframe pair verified";
-    } else {
-      const PairEvidence& best = out.pairs.front();
-      out.status = best.scale.status == Status::kOk ? Status::kScaleFailed : best.scale.status;
-      out.message = "no verified keyframe pair gave a scale (" + std::to_string(out.pairs.size()) +
-                    " tried); best pair source " + std::to_string(best.source_keyframe) + " / target " +
-                    std::to_string(best.target_keyframe) + ", " + std::to_string(best.inliers) + " inliers: " + best.note +
-                    "; nor did the pairs' depth matches pooled";
-    }
-  } else {
+  if (out.used_pairs > 0) {
     out.distant_pairs = keepNeighbourhood(source, target, options_.merge.local_keyframes, &out.pairs);
     out.used_pairs -= out.distant_pairs;
     for (PairEvidence& e : out.pairs) e.in_neighbourhood = e.used;
     pool(nullptr, &out);
+  } else if (out.pairs.empty()) {
+    out.status = Status::kRelativePoseFailed;
+    out.message = "no keyframe pair verified";
+  } else if (!jointEstimate(source, target, raw, options_, &out)) {
+    const PairEvidence& best = out.pairs.front();
+    out.status = best.scale.status == Status::kOk ? Status::kScaleFailed : best.scale.status;
+    out.message = "no verified keyframe pair gave a scale (" + std::to_string(out.pairs.size()) +
+                  " tried); best pair source " + std::to_string(best.source_keyframe) + " / target " +
+                  std::to_string(best.target_keyframe) + ", " + std::to_string(best.inliers) + " inliers: " + best.note +
+                  "; nor did the pairs' depth matches pooled";
   }
   out.ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   return out;
