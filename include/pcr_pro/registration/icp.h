@@ -47,12 +47,13 @@ struct IcpOptions {
   /// The source is randomly subsampled (deterministic seed) to at most this many points before
   /// the iterations [points]; 0 = all. The target is always used whole.
   int max_source_points = 10000;
-  /// Coarse-to-fine: the iterations first run on random subsets of the (sampled) source of
-  /// this many points, then four times as many, ... (each level used while the sample has more
-  /// than twice its size), each until the differential check passes at kCoarseToleranceFactor
-  /// times the thresholds below; then on the whole sample. The coarse levels keep the scale (a
-  /// sample sparser than the target biases it); the whole sample estimates it. The counter check
-  /// applies to each level [points]; 0 = one level.
+  /// Coarse-to-fine: the iterations first move random subsets of the (sampled) source of this
+  /// many points, then four times as many, ... (each level used while the sample has more than
+  /// twice its size), then the whole sample. A level matches its subset against the whole
+  /// sample's tree, normals and spacing (the same correspondences, fewer of them), until the
+  /// differential check passes at kCoarseToleranceFactor times the thresholds below. The coarse
+  /// levels keep the scale; the whole sample estimates it. The counter check applies to each
+  /// level [points]; 0 = one level.
   int coarse_source_points = 2000;
   // --- matcher
   /// Neighbours of a plane (>= 3): its normal, and the centroid it passes through.
