@@ -94,6 +94,29 @@ void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinem
   v->covariance += d * d.transpose();
 }
 
+// The clouds' own vote: when they fit clearly better at the refinement's estimate, the keyframe
+// evidence is the suspect one (wide-baseline pairs with few inliers can all be wrong alike), and
+// keeping it would merge wrongly: refused. The vote compares two poses by how much of the maps
+// they overlap, so it holds for a refinement that stopped at the iteration limit as for one
+// that converged: otherwise whether the keyframe estimate is refused or merged would turn on
+// where the ICP happened to be when it ran out of iterations (on 7-Scenes overlap_320_840 it
+// did: refused when the ICP converged, merged 11 deg from the truth when it did not).
+// @return true when refused (v complete)
+bool cloudsPreferRefinement(const KeyframeEstimate& keyframes, const Refinement& refinement,
+                            const MapRegistration& registration, const MergeGateOptions& options,
+                            const std::string& why, const char* what, GateVerdict* v) {
+  const double overlap_keyframes = registration.overlap(keyframes.estimate, options.overlap_distance_factor);
+  const double overlap_refined = registration.overlap(refinement.estimate, options.overlap_distance_factor);
+  if (!(overlap_refined > MergeGates::kCloudPreference * overlap_keyframes)) return false;
+  v->status = Status::kIcpNotConverged;
+  v->message = "refused: " + why + ", and the clouds fit " + what + " better (overlap " + fmt(100 * overlap_refined) +
+               " % against " + fmt(100 * overlap_keyframes) +
+               " % at the keyframe estimate): the keyframe evidence is not trusted";
+  v->overlap = overlap_keyframes;
+  v->clouds_prefer_refinement = true;
+  return true;
+}
+
 // A converged refinement not kept (v holds the keyframe estimate and covariance). Two estimates
 // disagree and the keyframe one is reported: its covariance must cover the other (the truth may
 // lie anywhere between them). Past a wide disagreement neither is trusted: refused, not merged
@@ -114,20 +137,7 @@ bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refineme
     v->overlap = registration.overlap(v->estimate, options.overlap_distance_factor);
     return true;
   }
-  // The clouds' own vote: when they fit clearly better at the refined estimate, the keyframe
-  // evidence is the suspect one (wide-baseline pairs with few inliers can all be wrong alike),
-  // and keeping it would merge wrongly: refused.
-  const double overlap_keyframes = registration.overlap(keyframes.estimate, options.overlap_distance_factor);
-  const double overlap_refined = registration.overlap(refinement.estimate, options.overlap_distance_factor);
-  if (overlap_refined > MergeGates::kCloudPreference * overlap_keyframes) {
-    v->status = Status::kIcpNotConverged;
-    v->message = "refused: " + why + ", and the clouds fit the refined estimate better (overlap " +
-                 fmt(100 * overlap_refined) + " % against " + fmt(100 * overlap_keyframes) +
-                 " % at the keyframe estimate): the keyframe evidence is not trusted";
-    v->overlap = overlap_keyframes;
-    v->clouds_prefer_refinement = true;
-    return true;
-  }
+  if (cloudsPreferRefinement(keyframes, refinement, registration, options, why, "the refined estimate", v)) return true;
   const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
   v->covariance = coveringCovariance(keyframes.covariance, d * d.transpose() + 1e-12 * keyframes.covariance);
   return false;
@@ -180,6 +190,12 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
     v.estimate = keyframes.estimate;
     v.covariance = keyframes.covariance;
     if (refined && refuseOrCover(keyframes, refinement, registration, options_, why, &v)) return v;
+    // A refinement that ran out of iterations still ended somewhere: the clouds' vote applies.
+    if (!refined && refinement.status == Status::kIcpNotConverged && refinement.estimate.matrix().allFinite() &&
+        cloudsPreferRefinement(keyframes, refinement, registration, options_, why, "the refinement's last estimate",
+                               &v)) {
+      return v;
+    }
   }
   overlapAndStatus(keyframes, refinement, registration, options_, why, &v);
   return v;
