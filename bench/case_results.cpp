@@ -249,7 +249,7 @@ void writeIcpFromTruth(std::FILE* md, const std::vector<CaseResult>& results) {
   std::fprintf(md, "**Our refinement alone, started at the exact truth** (the merge's registration with the default "
                    "options, scale estimated, no keyframe matches as anchors: what `pcr_pro_icp --estimate-scale` "
                    "does from a perfect start; issue 12 asks that it stay there): within the floors on **%d / %d** "
-                   "overlapping cases (the same clouds count once per case that has them).%s\n\n",
+                   "overlapping cases (cases with the same clouds share one run, and each counts).%s\n\n",
                within, run, away.empty() ? "" : " Where it did not stay:");
   if (!away.empty()) {
     std::fprintf(md, "| case | ICP | rot [deg] / trans [%% ext.] / scale [%%] |\n|---|---|---|\n%s\n", away.c_str());
