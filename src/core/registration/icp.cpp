@@ -581,7 +581,6 @@ constexpr Eigen::Index kThicknessSamples = 2000;
 
 LevelSource levelSource(const Cloud& source, const LevelEnv& env) {
   const IcpOptions& o = env.o;
-  const Cloud& target = env.tree.points();
   const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
   const bool symmetric = o.symmetric && plane;
   LevelSource level;
@@ -590,10 +589,7 @@ LevelSource levelSource(const Cloud& source, const LevelEnv& env) {
     level.spacing = medianSpacing(*level.tree);
   }
   if (plane && o.estimate_scale) level.thickness2 = surfaceThickness2(*level.tree, o.normal_neighbors, kThicknessSamples);
-  if (symmetric) {
-    level.normals = std::make_unique<LazyNormals>(*level.tree, o.normal_neighbors);
-    level.reverse_targets = targetSample(target.cols(), source.cols());
-  }
+  if (symmetric) level.normals = std::make_unique<LazyNormals>(*level.tree, o.normal_neighbors);
   return level;
 }
 
@@ -913,30 +909,25 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
 
   // Final correspondences (and their weights) at the converged pose, both directions when
   // symmetric, in the form the covariance takes: source point, target point, residual normal.
+  // The levels' source tree, spacing and normals serve here too (the same cloud).
   const Cloud moved = current.apply(source);
   const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
   const bool symmetric = o.symmetric && plane;
-  std::unique_ptr<KdTree> source_tree;
-  double source_spacing = 0.0;
-  if (o.reciprocal || symmetric) {
-    source_tree = std::make_unique<KdTree>(source);
-    source_spacing = medianSpacing(*source_tree);
-  }
-  const MatchContext ctx{tree, source_tree.get(), current, std::max(env.target_spacing, source_spacing * current.scale())};
+  const bool source_checks = o.reciprocal || symmetric;
+  const MatchContext ctx{tree, source_checks ? level.tree.get() : nullptr, current,
+                         std::max(env.target_spacing, (source_checks ? level.spacing : 0.0) * current.scale())};
   std::vector<Match> m = matchAndReject(moved, ctx, o);
   // The covariance's observability check needs target normals for both metrics.
   normals.ensure(m);
   std::vector<Match> reverse;
-  std::unique_ptr<LazyNormals> source_normals;
   if (symmetric) {
-    reverse = reverseMatchAndReject(moved, ctx, *source_tree, targetSample(target.cols(), source.cols()), o);
-    source_normals = std::make_unique<LazyNormals>(*source_tree, o.normal_neighbors);
+    reverse = reverseMatchAndReject(moved, ctx, *level.tree, targetSample(target.cols(), source.cols()), o);
     std::vector<Eigen::Index> used;
     for (const Match& r : reverse) used.push_back(r.source);
-    source_normals->ensureIndices(used);
+    level.normals->ensureIndices(used);
   }
   PlaneSet set = planeSet(moved, target, m, normals.normals(), reverse,
-                          symmetric ? &source_normals->normals() : nullptr, current.rotation());
+                          symmetric ? &level.normals->normals() : nullptr, current.rotation());
   double spread = 0.0;
   if (plane) {
     applyPlaneKernel(o, ctx.spacing, &set);
