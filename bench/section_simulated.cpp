@@ -6,6 +6,7 @@
 #include <memory>
 
 #include "case_results.h"
+#include "common/bench_worlds.h"
 #include "pcr_pro/sim/simulator.h"
 #include "suite.h"
 
@@ -38,25 +39,6 @@ SimSweep simSweep(bool quick) {
   }
   s.seeds = 2;
   return s;
-}
-
-// One world: agents a and b with the cell's overlap and drift; with `apart`, a third agent that
-// does not overlap a. 320x240 keyframes as the real LSD-SLAM runs give (and a quarter of the
-// rendering and SIFT cost of 640x480); paths of about 5 keyframes as in the merge tests.
-SimulatorOptions worldOptions(double overlap, double drift, double noise, int seed, bool apart) {
-  SimulatorOptions o;
-  o.seed = static_cast<std::uint64_t>(1000 + seed);
-  o.agents = apart ? 3 : 2;
-  o.camera = PinholeCamera{262.5, 262.5, 159.5, 119.5, 320, 240};
-  o.layout.overlap = overlap;
-  o.trajectory.azimuth_span_deg = 60.0;
-  o.trajectory.keyframe_angle_deg = 15.0;
-  o.trajectory.keyframe_distance = 0.45;
-  // Drift of either sign (alternating with the seed), and the map bend that comes with it.
-  o.drift.scale_drift = (seed % 2 ? -1.0 : 1.0) * drift;
-  o.drift.bend_deg = 40.0 * drift;
-  o.map.semi_dense.idepth_noise = noise;
-  return o;
 }
 
 AgentMap withoutDepth(const AgentMap& map) {
@@ -186,7 +168,7 @@ void sectionSimulated(Output& out, const SuiteConfig& config, std::FILE* headlin
       options.open3d_settings = {best["simulated"]};
     }
     for (const SimCell& c : s.cells) {
-      const Simulation sim = simulate(worldOptions(c.overlap, c.drift, c.noise, seed, seed == 0));
+      const Simulation sim = simulate(test::benchWorldOptions(c.overlap, c.drift, c.noise, seed, seed == 0));
       const std::string tag = "o" + fmt(c.overlap, 2) + "_d" + fmt(c.drift, 3) + "_n" + fmt(c.noise, 2) + "_s" +
                               std::to_string(seed);
       runWorld(sim, tag, cellName(c.overlap, c.drift, c.noise), options, results, peer_cache);

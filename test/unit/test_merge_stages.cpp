@@ -18,6 +18,7 @@
 #include "pcr_pro/registration/cloud_registration.h"
 #include "pcr_pro/registration/filters.h"
 #include "pcr_pro/sim/simulator.h"
+#include "common/bench_worlds.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {
@@ -305,30 +306,19 @@ TEST(IcpScale, StartedAtTheTruthItStaysOnLowOverlapAndNoisySemiDenseMaps) {
   }
 }
 
-// Worlds of the bench's simulated section (bench/section_simulated.cpp: 320x240 keyframes, 60 deg of
-// azimuth, a keyframe every 15 deg or 0.45 m, drift of the seed's sign with a bend of 40 deg per
-// unit) where pcr_pro_icp's path, started at the exact truth, left it while its coarse levels were
-// sparser clouds of their own (their own spacing, normals and reciprocal check, hence another
-// optimum): 15 % overlap, 4.75 deg / -8.2 %; 60 % overlap at inverse-depth noise 0.03 and 2.5 %
-// drift, 5.2 deg / -23 % and 2.7 deg, neither converged. With the coarse levels moving subsets of
-// the whole sample: 0.29 deg / -0.99 %, 0.43 deg / +0.46 %, 0.76 deg / -0.44 %. Bounds as above.
+// Worlds of the bench's simulated section (common/bench_worlds.h) where pcr_pro_icp's path, started
+// at the exact truth, left it while its coarse levels were sparser clouds of their own (their own
+// spacing, normals and reciprocal check, hence another optimum): 15 % overlap, 4.75 deg / -8.2 %;
+// 60 % overlap at inverse-depth noise 0.03 and 2.5 % drift, 5.2 deg / -23 % and 2.7 deg, neither
+// converged. With the coarse levels moving subsets of the whole sample: 0.29 deg / -0.99 %,
+// 0.43 deg / +0.46 %, 0.76 deg / -0.44 %. Bounds as above.
 TEST(IcpScale, StartedAtTheTruthItStaysOnTheBenchWorldsOfLowOverlapAndHighNoise) {
   struct World {
     int seed;
     double overlap, drift, noise;
   };
   for (const World& w : {World{0, 0.15, 0.0, 0.01}, World{1, 0.6, 0.025, 0.03}, World{0, 0.6, 0.025, 0.03}}) {
-    SimulatorOptions o;
-    o.seed = static_cast<std::uint64_t>(1000 + w.seed);
-    o.agents = 2;
-    o.camera = PinholeCamera{262.5, 262.5, 159.5, 119.5, 320, 240};
-    o.layout.overlap = w.overlap;
-    o.trajectory.azimuth_span_deg = 60.0;
-    o.trajectory.keyframe_angle_deg = 15.0;
-    o.trajectory.keyframe_distance = 0.45;
-    o.drift.scale_drift = (w.seed % 2 ? -1.0 : 1.0) * w.drift;
-    o.drift.bend_deg = 40.0 * w.drift;
-    o.map.semi_dense.idepth_noise = w.noise;
+    const SimulatorOptions o = test::benchWorldOptions(w.overlap, w.drift, w.noise, w.seed, false);
     const Simulation sim = simulate(o);
     const Sim3& truth = sim.pair(0, 1).target_source;
     RegistrationOptions ro;
