@@ -162,6 +162,30 @@ TEST_F(RealLsdSlam, BothDirectionsMergeNearTheOverlapTruth) {
   }
 }
 
+// The ICP slides on these maps, which do not align by one similarity: from the keyframe estimate
+// to an optimum about 18 deg away that overlaps the clouds 1.2 times as much. Whether the maps
+// merge must not turn on where it stopped: before, b -> a was refused when it stopped at 50
+// iterations (the clouds' vote, then at 1.2) and when it converged at 100 (the two estimates
+// excluded each other), and merged at the default 60.
+TEST_F(RealLsdSlam, WhetherTheMapsMergeDoesNotTurnOnWhereTheIcpStops) {
+  const RealMerges& m = realMerges();
+  ASSERT_EQ(m.b_into_a.report.status, Status::kOk) << m.b_into_a.report.message;
+  for (const int iterations : {50, 100}) {
+    MergeOptions options;
+    options.registration.icp.max_iterations = iterations;
+    std::srand(1);
+    const MergeResult r = MergePipeline{options}.merge(m.b, m.a, MergeRequest(), "agent_b", "agent_a");
+    ASSERT_EQ(r.report.status, Status::kOk) << iterations << " iterations: " << r.report.message;
+    const Score e = score(r, false, m.truth);
+    std::printf("b->a, ICP stopped at %d iterations: rotation %.2f deg, scale %+.1f %% from the overlap truth; %s\n",
+                iterations, e.rotation_deg, 100.0 * (std::exp(e.log_scale) - 1.0),
+                r.diagnostics.refinement_kept ? "refined estimate" : "keyframe estimate");
+    // The same bounds as the default merge's (BothDirectionsMergeNearTheOverlapTruth).
+    EXPECT_LT(e.rotation_deg, 3.0) << iterations;
+    EXPECT_LT(std::abs(std::exp(e.log_scale) - 1.0), 0.2) << iterations;
+  }
+}
+
 TEST_F(RealLsdSlam, AToBIsTheInverseOfBToAWithinTheirUncertainty) {
   const RealMerges& m = realMerges();
   ASSERT_EQ(m.b_into_a.report.status, Status::kOk);

@@ -456,7 +456,7 @@ TEST(LowOverlapWorld, WhenThePairsSplitTheMapCloudsChooseTheSide) {
 // cell (inverse-depth noise 0.03), without depth images: the four verified pairs split two
 // against two and the pooled keyframe estimate lands 22 deg from the truth. The refinement from
 // there either fails or is not kept (it would rotate the estimate by more than
-// merge.max_icp_rotation_correction_deg), and the clouds do not fit it 1.2 times better, so the
+// merge.max_icp_rotation_correction_deg), and the clouds do not fit it clearly better, so the
 // gates would report the keyframe estimate. The camp of the two right pairs (each of them, taken
 // as the hypothesis, gives the same two) is refined from its own estimate and reported instead.
 // Before, the 22 deg estimate was reported OK with a 7 deg 1-sigma.
@@ -544,6 +544,48 @@ TEST(MergeGates, ARefinementThatRanOutOfIterationsStillGetsTheCloudsVote) {
   EXPECT_FALSE(kept.clouds_prefer_refinement);
   EXPECT_FALSE(kept.refinement_kept);
   EXPECT_NE(kept.message.find("keyframe estimate kept: the refinement failed"), std::string::npos) << kept.message;
+}
+
+// A converged refinement that moved the keyframe estimate beyond the corrections a refinement is
+// trusted with (here 20 deg > merge.max_icp_rotation_correction_deg) went to another optimum:
+// where the clouds do not fit it clearly better, it is ignored as a failed one is, and the
+// keyframe estimate is reported with its own covariance (before, the two estimates excluded each
+// other and the merge was refused, while the same refinement stopped by the iteration limit was
+// ignored); where they do, the keyframe evidence is the suspect one and the merge is refused.
+TEST(MergeGates, ARefinementBeyondTheCorrectionLimitsMustBeSupportedByTheClouds) {
+  std::mt19937 rng(12);
+  const Cloud target = test::syntheticScene(3000, 2.0, rng);
+  const Cloud source = test::syntheticScene(3000, 2.0, rng);  // the same scene: identity aligns them
+  MapRegistration registration(RegistrationOptions(), true);
+  ASSERT_EQ(registration.setClouds(source, target), "");
+  const MergeGates gates{MergeGateOptions()};
+  const Eigen::Vector3d centre = target.rowwise().mean();
+  const Eigen::Matrix3d r20 = Eigen::AngleAxisd(test::rad(20.0), Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const Sim3 turned(1.0, r20, centre - r20 * centre);  // 20 deg about the scene's centre
+  // Precondition: the clouds fit the truth clearly better than the turned estimate.
+  ASSERT_GT(gates.cloudOverlap(Sim3(), registration), MergeGates::kCloudPreference * gates.cloudOverlap(turned, registration));
+  ASSERT_GT(20.0, MergeGateOptions().max_icp_rotation_correction_deg);
+  KeyframeEstimate kf;
+  kf.status = Status::kOk;
+  kf.used_pairs = 2;
+  kf.covariance = 1e-4 * Matrix7d::Identity();
+  Refinement converged;
+  converged.status = Status::kOk;
+  converged.covariance = 1e-4 * Matrix7d::Identity();
+
+  kf.estimate = Sim3();
+  converged.estimate = turned;
+  const GateVerdict ignored = gates.judge(kf, converged, registration);
+  EXPECT_EQ(ignored.status, Status::kOk) << ignored.message;
+  EXPECT_FALSE(ignored.refinement_kept);
+  EXPECT_NE(ignored.message.find("the refinement is ignored"), std::string::npos) << ignored.message;
+  EXPECT_LT(rotationDistance(ignored.estimate.rotation(), Eigen::Matrix3d::Identity()), 1e-12);
+  EXPECT_TRUE(ignored.covariance.isApprox(kf.covariance));
+
+  kf.estimate = turned;
+  converged.estimate = Sim3();
+  const GateVerdict refused = gates.judge(kf, converged, registration);
+  EXPECT_EQ(refused.status, Status::kIcpNotConverged) << refused.message;
 }
 
 TEST(NoiseFloor, ACloudRegisteredWithItselfHasAFiniteResolutionLimitedInformation) {

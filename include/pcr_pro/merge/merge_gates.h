@@ -28,6 +28,10 @@ struct GateVerdict {
   /// Refused because the keyframe estimate disagrees with the refinement and the map clouds fit
   /// the refined estimate clearly better: the keyframe evidence is the suspect one.
   bool clouds_prefer_refinement = false;
+  /// Why a converged refinement was ignored as a failed one is (it moved the keyframe estimate
+  /// beyond merge.max_icp_rotation_correction_deg or merge.max_scale_disagreement, and the clouds
+  /// do not fit it clearly better); empty otherwise.
+  std::string ignored_refinement;
 };
 
 /// Stage 4 of the merge (see the file comment).
@@ -49,7 +53,14 @@ class MergeGates {
    * d dᵀ, d the move from the keyframe estimate to the refined one (the keyframe evidence
    * measures the anchor pair's surroundings; against their local similarity the move is a
    * possible error). On maps without drift this is conservative.
-   * Otherwise the keyframe estimate and its covariance are reported, with why in the message.
+   * Otherwise the keyframe estimate is reported, with why in the message, and a converged
+   * refinement not kept decides its covariance or a refusal: one that moved the keyframe estimate
+   * beyond max_icp_rotation_correction_deg or max_scale_disagreement went to another optimum and
+   * is ignored, as a failed one is (the keyframe covariance alone), unless the clouds fit it
+   * kCloudPreference times better (refused: the keyframe evidence is suspect); with two or more
+   * keyframe pairs, one that excludes the keyframe estimate (χ² beyond four times the gate) is
+   * refused; where the clouds fit it clearly better, refused; else the covariance is widened to
+   * cover it. A refinement that ran out of iterations gets the clouds' vote at its last estimate.
    * The reported estimate must then overlap the target by min_overlap (MapRegistration::overlap()),
    * measured in the ball that holds the pooled keyframe matches (where the maps overlap: each
    * monocular map drifts, so outside it the maps need not align).

@@ -29,9 +29,9 @@ const ParamSchema<MergeGateOptions>& paramSchema<MergeGateOptions>() {
       {"min_overlap", &O::min_overlap, R::closed(0, 1), "-",
        "the larger of the source's and the target's overlapping fraction below this: NO_OVERLAP"},
       {"max_scale_disagreement", &O::max_scale_disagreement, R::above(0), "-",
-       "larger relative disagreement of the refined and the keyframe scale: SCALE_FAILED"},
+       "a refinement that changes the keyframe scale by more (relative) is ignored, or refused when the clouds fit it clearly better"},
       {"max_icp_rotation_correction_deg", &O::max_icp_rotation_correction_deg, R::above(0), "deg",
-       "larger rotation of the keyframe estimate by the refinement: refused"},
+       "a refinement that rotates the keyframe estimate by more is ignored, or refused when the clouds fit it clearly better"},
   }};
   return schema;
 }
