@@ -504,28 +504,46 @@ TEST(MergeGates, AlignedMapsThatDoNotOverlapAreNoOverlap) {
   EXPECT_LT(v.overlap, 0.01);
 }
 
+// Two samplings of one synthetic scene (the identity aligns them), registered, and the default
+// gates; and a keyframe estimate from two pairs with a tight covariance, for the gates' tests.
+struct SameScene {
+  Cloud target;
+  MapRegistration registration{RegistrationOptions(), true};
+  MergeGates gates{MergeGateOptions()};
+  std::string set_clouds;  // registration.setClouds()'s answer: empty when the clouds are usable
+  explicit SameScene(unsigned seed) {
+    std::mt19937 rng(seed);
+    target = test::syntheticScene(3000, 2.0, rng);
+    const Cloud source = test::syntheticScene(3000, 2.0, rng);
+    set_clouds = registration.setClouds(source, target);
+  }
+};
+
+KeyframeEstimate twoPairKeyframeEstimate() {
+  KeyframeEstimate kf;
+  kf.status = Status::kOk;
+  kf.used_pairs = 2;
+  kf.covariance = 1e-4 * Matrix7d::Identity();
+  return kf;
+}
+
 // The clouds' vote (merge_gates.cpp) compares the overlap at two poses, so a refinement that ran out
 // of iterations gets it too: where the clouds fit its last estimate clearly better than the
 // keyframe estimate, the merge is refused, as for a converged one (before, the keyframe estimate
 // was merged: on 7-Scenes overlap_320_840 11 deg from the truth); where they do not, the keyframe
 // estimate stands.
 TEST(MergeGates, ARefinementThatRanOutOfIterationsStillGetsTheCloudsVote) {
-  std::mt19937 rng(11);
-  const Cloud target = test::syntheticScene(3000, 2.0, rng);
-  const Cloud source = test::syntheticScene(3000, 2.0, rng);  // the same scene: identity aligns them
-  MapRegistration registration(RegistrationOptions(), true);
-  ASSERT_EQ(registration.setClouds(source, target), "");
-  const MergeGates gates{MergeGateOptions()};
+  const SameScene scene(11);
+  ASSERT_EQ(scene.set_clouds, "");
+  const MapRegistration& registration = scene.registration;
+  const MergeGates& gates = scene.gates;
   const Sim3 off(1.0, Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.12, 0.0, 0.12));
   const double overlap_off = gates.cloudOverlap(off, registration);
   const double overlap_right = gates.cloudOverlap(Sim3(), registration);
   // Preconditions: the keyframe estimate would pass the overlap gate, and the clouds prefer the truth.
   ASSERT_GT(overlap_off, MergeGateOptions().min_overlap);
   ASSERT_GT(overlap_right, MergeGates::kCloudPreference * overlap_off);
-  KeyframeEstimate kf;
-  kf.status = Status::kOk;
-  kf.used_pairs = 2;
-  kf.covariance = 1e-4 * Matrix7d::Identity();
+  KeyframeEstimate kf = twoPairKeyframeEstimate();
   Refinement stopped;
   stopped.status = Status::kIcpNotConverged;
   stopped.message = "icp: no convergence within 60 iterations on the full sample";
@@ -553,22 +571,18 @@ TEST(MergeGates, ARefinementThatRanOutOfIterationsStillGetsTheCloudsVote) {
 // other and the merge was refused, while the same refinement stopped by the iteration limit was
 // ignored); where they do, the keyframe evidence is the suspect one and the merge is refused.
 TEST(MergeGates, ARefinementBeyondTheCorrectionLimitsMustBeSupportedByTheClouds) {
-  std::mt19937 rng(12);
-  const Cloud target = test::syntheticScene(3000, 2.0, rng);
-  const Cloud source = test::syntheticScene(3000, 2.0, rng);  // the same scene: identity aligns them
-  MapRegistration registration(RegistrationOptions(), true);
-  ASSERT_EQ(registration.setClouds(source, target), "");
-  const MergeGates gates{MergeGateOptions()};
-  const Eigen::Vector3d centre = target.rowwise().mean();
+  const SameScene scene(12);
+  ASSERT_EQ(scene.set_clouds, "");
+  const MapRegistration& registration = scene.registration;
+  const MergeGates& gates = scene.gates;
+  const Eigen::Vector3d centre = scene.target.rowwise().mean();
   const Eigen::Matrix3d r20 = Eigen::AngleAxisd(test::rad(20.0), Eigen::Vector3d::UnitZ()).toRotationMatrix();
   const Sim3 turned(1.0, r20, centre - r20 * centre);  // 20 deg about the scene's centre
   // Precondition: the clouds fit the truth clearly better than the turned estimate.
-  ASSERT_GT(gates.cloudOverlap(Sim3(), registration), MergeGates::kCloudPreference * gates.cloudOverlap(turned, registration));
+  ASSERT_GT(gates.cloudOverlap(Sim3(), registration),
+            MergeGates::kCloudPreference * gates.cloudOverlap(turned, registration));
   ASSERT_GT(20.0, MergeGateOptions().max_icp_rotation_correction_deg);
-  KeyframeEstimate kf;
-  kf.status = Status::kOk;
-  kf.used_pairs = 2;
-  kf.covariance = 1e-4 * Matrix7d::Identity();
+  KeyframeEstimate kf = twoPairKeyframeEstimate();
   Refinement converged;
   converged.status = Status::kOk;
   converged.covariance = 1e-4 * Matrix7d::Identity();
