@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <sstream>
 #include <utility>
 
@@ -101,13 +102,26 @@ void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinem
 // that converged: otherwise whether the keyframe estimate is refused or merged would turn on
 // where the ICP happened to be when it ran out of iterations (on 7-Scenes overlap_320_840 it
 // did: refused when the ICP converged, merged 11 deg from the truth when it did not).
+// The two overlaps the vote compares (MergeGates::cloudOverlap() at each estimate).
+struct CloudVote {
+  double keyframes = 0.0, refined = 0.0;
+  bool prefersRefinement() const { return refined > MergeGates::kCloudPreference * keyframes; }
+};
+
+CloudVote cloudVote(const KeyframeEstimate& keyframes, const Refinement& refinement,
+                    const MapRegistration& registration, const MergeGateOptions& options) {
+  return {registration.overlap(keyframes.estimate, options.overlap_distance_factor),
+          registration.overlap(refinement.estimate, options.overlap_distance_factor)};
+}
+
+// @param[in] vote the overlaps when already measured (null: measured here)
 // @return true when refused (v complete)
 bool cloudsPreferRefinement(const KeyframeEstimate& keyframes, const Refinement& refinement,
                             const MapRegistration& registration, const MergeGateOptions& options,
-                            const std::string& why, const char* what, GateVerdict* v) {
-  const double overlap_keyframes = registration.overlap(keyframes.estimate, options.overlap_distance_factor);
-  const double overlap_refined = registration.overlap(refinement.estimate, options.overlap_distance_factor);
-  if (!(overlap_refined > MergeGates::kCloudPreference * overlap_keyframes)) return false;
+                            const std::string& why, const char* what, const CloudVote* vote, GateVerdict* v) {
+  const CloudVote measured = vote ? *vote : cloudVote(keyframes, refinement, registration, options);
+  const double overlap_keyframes = measured.keyframes, overlap_refined = measured.refined;
+  if (!measured.prefersRefinement()) return false;
   v->status = Status::kIcpNotConverged;
   v->message = "refused: " + why + ", and the clouds fit " + what + " better (overlap " + fmt(100 * overlap_refined) +
                " % against " + fmt(100 * overlap_keyframes) +
@@ -137,10 +151,11 @@ bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refineme
   // two estimates exclude each other and the merge was refused.
   const bool beyond = v->rotation_correction_deg > options.max_icp_rotation_correction_deg ||
                       v->scale_disagreement > options.max_scale_disagreement;
+  std::optional<CloudVote> vote;
   if (beyond) {
-    const double overlap_keyframes = registration.overlap(keyframes.estimate, options.overlap_distance_factor);
-    const double overlap_refined = registration.overlap(refinement.estimate, options.overlap_distance_factor);
-    if (!(overlap_refined > MergeGates::kCloudPreference * overlap_keyframes)) {
+    vote = cloudVote(keyframes, refinement, registration, options);
+    const double overlap_keyframes = vote->keyframes, overlap_refined = vote->refined;
+    if (!vote->prefersRefinement()) {
       v->ignored_refinement = why + " (rotation " + fmt(v->rotation_correction_deg) + " deg, scale " +
                               fmt(100 * v->scale_disagreement) + " % apart, beyond " +
                               fmt(options.max_icp_rotation_correction_deg) + " deg or " +
@@ -164,7 +179,10 @@ bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refineme
     v->overlap = registration.overlap(v->estimate, options.overlap_distance_factor);
     return true;
   }
-  if (cloudsPreferRefinement(keyframes, refinement, registration, options, why, "the refined estimate", v)) return true;
+  if (cloudsPreferRefinement(keyframes, refinement, registration, options, why, "the refined estimate",
+                             vote ? &*vote : nullptr, v)) {
+    return true;
+  }
   const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
   v->covariance = coveringCovariance(keyframes.covariance, d * d.transpose() + 1e-12 * keyframes.covariance);
   return false;
@@ -221,7 +239,7 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
     // A refinement that ran out of iterations still ended somewhere: the clouds' vote applies.
     if (!refined && refinement.status == Status::kIcpNotConverged && refinement.estimate.matrix().allFinite() &&
         cloudsPreferRefinement(keyframes, refinement, registration, options_, why, "the refinement's last estimate",
-                               &v)) {
+                               nullptr, &v)) {
       return v;
     }
   }
