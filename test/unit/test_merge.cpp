@@ -166,6 +166,40 @@ TEST(Merge, SharedWorldCloudsAreRegisteredToTheirExactTruth) {
   EXPECT_LT(e.translation, 0.5 * guess.translation);  // the ICP refines the keyframe guess
 }
 
+// The slambook2 maps without depth images, their clouds thinned to 30 % and 10 % of the points (as
+// `make bench`'s robustness sweep does): the keyframe depth then comes from sparser clouds and the
+// keyframe estimate is 2.0 % and 2.8 % off in scale, while the refinement is within 0.7 deg and
+// 0.3 % and agrees with it within the gate. It used to be set aside because it moved the matches
+// farther than the envelope of the two keyframe pairs' own estimates (an envelope of two, and of
+// pairs pooled jointly, says nothing: merge_gates.cpp), and the merge reported the keyframe scale.
+TEST(Merge, SparseCloudsWithoutDepthImagesKeepTheirRefinement) {
+  PCR_PRO_REQUIRE_REAL_CASE("slambook2/nodepth");
+  const std::string dir = test::realCasePath("slambook2/nodepth");
+  const BundleTruth truth = loadBundleTruth(dir + "/truth.yaml");
+  const AgentMap full_target = loadBundle(dir + "/" + truth.target_agent);
+  const AgentMap full_source = loadBundle(dir + "/" + truth.source_agent);
+  for (const double keep : {0.3, 0.1}) {
+    AgentMap target = full_target, source = full_source;
+    RandomSamplingOptions thin;
+    thin.keep_ratio = keep;
+    thin.seed = 101;
+    target.cloud = randomSamplingFilter(full_target.cloud, thin);
+    thin.seed = 202;
+    source.cloud = randomSamplingFilter(full_source.cloud, thin);
+    const MergeResult r = mergeMaps(source, target, MergeRequest(), MergeOptions());
+    const std::string what = "keep " + std::to_string(keep) + ": " + r.report.message;
+    ASSERT_EQ(r.report.status, Status::kOk) << what;
+    EXPECT_TRUE(r.report.refinement_kept.value_or(false)) << what;
+    const Errors e = errors(*r.report.transform, truth.target_source);
+    EXPECT_LT(e.rotation_deg, kRotationTolDeg) << what;
+    EXPECT_LT(e.scale_rel, kScaleTol) << what;
+    // Where the two put the source map (its centroid), not the translation at the target's origin,
+    // which a rotation error within the tolerance moves by its lever arm (10 m here).
+    const Eigen::Vector3d centre = source.cloud.rowwise().mean();
+    EXPECT_LT((r.report.transform->apply(centre) - truth.target_source.apply(centre)).norm(), kTranslationTol) << what;
+  }
+}
+
 TEST(Merge, VotePreselectionKeepsTheBestPair) {
   // 3 x 3 keyframes = 9 pairs (fewer than merge.max_candidate_pairs, 10: all are matched); matching
   // only the 2 with most descriptor votes must still find the pair that the full search picks.
