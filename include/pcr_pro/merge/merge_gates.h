@@ -46,8 +46,8 @@ class MergeGates {
    * The refinement is kept when it converged, agrees with the keyframe estimate within
    * refinement_agreement_chi2 (7 DoF, both covariances), moves the pooled keyframe matches no
    * farther (RMS) than the farthest used keyframe pair's own estimate does (when three or more
-   * used pairs have an estimate of their own: the envelope of fewer says nothing), rotates it by at most
-   * max_icp_rotation_correction_deg and changes its scale by at most max_scale_disagreement; its
+   * used pairs have an estimate of their own: the envelope of fewer says nothing), rotates it by
+   * at most max_icp_rotation_correction_deg and changes its scale by at most max_scale_disagreement; its
    * covariance is then scaled by max(1, χ² / 7), the disagreement of two independent estimates,
    * plus the keyframe pairs' between-pair covariance (KeyframeEstimate::between: the edge is
    * attached to one keyframe pair, where the local similarity differs from the region's) and

@@ -116,13 +116,6 @@ void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinem
   v->covariance += d * d.transpose();
 }
 
-// The clouds' own vote: when they fit clearly better at the refinement's estimate, the keyframe
-// evidence is the suspect one (wide-baseline pairs with few inliers can all be wrong alike), and
-// keeping it would merge wrongly: refused. The vote compares two poses by how much of the maps
-// they overlap, so it holds for a refinement that stopped at the iteration limit as for one
-// that converged: otherwise whether the keyframe estimate is refused or merged would turn on
-// where the ICP happened to be when it ran out of iterations (on 7-Scenes overlap_320_840 it
-// did: refused when the ICP converged, merged 11 deg from the truth when it did not).
 // The two overlaps the vote compares (MergeGates::cloudOverlap() at each estimate).
 struct CloudVote {
   double keyframes = 0.0, refined = 0.0;
@@ -135,6 +128,13 @@ CloudVote cloudVote(const KeyframeEstimate& keyframes, const Refinement& refinem
           registration.overlap(refinement.estimate, options.overlap_distance_factor)};
 }
 
+// The clouds' own vote: when they fit clearly better at the refinement's estimate, the keyframe
+// evidence is the suspect one (wide-baseline pairs with few inliers can all be wrong alike), and
+// keeping it would merge wrongly: refused. The vote compares two poses by how much of the maps
+// they overlap, so it holds for a refinement that stopped at the iteration limit as for one
+// that converged: otherwise whether the keyframe estimate is refused or merged would turn on
+// where the ICP happened to be when it ran out of iterations (on 7-Scenes overlap_320_840 it
+// did: refused when the ICP converged, merged 11 deg from the truth when it did not).
 // @param[in] vote the overlaps when already measured (null: measured here)
 // @return true when refused (v complete)
 bool cloudsPreferRefinement(const KeyframeEstimate& keyframes, const Refinement& refinement,
