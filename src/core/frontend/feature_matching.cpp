@@ -185,26 +185,37 @@ std::vector<std::vector<int>> keyframePairVotes(const std::vector<const Keyframe
   cv::Mat all;
   cv::vconcat(parts, all);
   const DescriptorIndex index(all, options.flann_trees, options.seed);
-  DescriptorIndex::Searcher searcher(index);
-  std::vector<DescriptorNeighbor> m;
+  std::vector<cv::Mat> queries;
+  for (std::size_t s = 0; s < sources.size(); ++s) {
+    queries.push_back(usableDescriptors(*sources[s], "source"));
+    if (!queries.back().empty() && queries.back().cols != length) {
+      throw InputError("keyframePairVotes: descriptor lengths differ");
+    }
+  }
   // The ratio test on distances, compared squared: d0 < r * dk  <=>  d0^2 < r^2 * dk^2.
   const float ratio2 = static_cast<float>(options.ratio_test * options.ratio_test);
-  for (std::size_t s = 0; s < sources.size(); ++s) {
-    const cv::Mat q = usableDescriptors(*sources[s], "source");
-    if (q.empty()) continue;
-    if (q.cols != length) throw InputError("keyframePairVotes: descriptor lengths differ");
-    for (int row = 0; row < q.rows; ++row) {
-      searcher.knn(q.ptr<float>(row), 4, options.flann_checks, &m);
-      if (m.empty()) continue;
-      const int best = owner[static_cast<std::size_t>(m[0].index)];
-      bool accept = true;
-      for (std::size_t k = 1; k < m.size(); ++k) {
-        if (owner[static_cast<std::size_t>(m[k].index)] != best) {
-          accept = m[0].squared_distance < ratio2 * m[k].squared_distance;
-          break;
+  // Each source keyframe's row of votes on its own thread (a searcher per thread; the index is
+  // only read): the same votes as in turn.
+#pragma omp parallel
+  {
+    DescriptorIndex::Searcher searcher(index);
+    std::vector<DescriptorNeighbor> m;
+#pragma omp for schedule(dynamic)
+    for (std::size_t s = 0; s < sources.size(); ++s) {
+      const cv::Mat& q = queries[s];
+      for (int row = 0; row < q.rows; ++row) {
+        searcher.knn(q.ptr<float>(row), 4, options.flann_checks, &m);
+        if (m.empty()) continue;
+        const int best = owner[static_cast<std::size_t>(m[0].index)];
+        bool accept = true;
+        for (std::size_t k = 1; k < m.size(); ++k) {
+          if (owner[static_cast<std::size_t>(m[k].index)] != best) {
+            accept = m[0].squared_distance < ratio2 * m[k].squared_distance;
+            break;
+          }
         }
+        if (accept) ++votes[s][static_cast<std::size_t>(best)];
       }
-      if (accept) ++votes[s][static_cast<std::size_t>(best)];
     }
   }
   return votes;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstring>
+#include <exception>
 #include <optional>
 #include <tuple>
 
@@ -13,6 +14,23 @@ using Clock = std::chrono::steady_clock;
 
 double msSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+// f(0) ... f(n - 1) on the OpenMP threads; when calls threw, one of their exceptions is rethrown
+// here (an exception must not leave a parallel region).
+template <typename F>
+void forEachInParallel(std::size_t n, const F& f) {
+  std::exception_ptr error;
+#pragma omp parallel for schedule(dynamic)
+  for (std::size_t k = 0; k < n; ++k) {
+    try {
+      f(k);
+    } catch (...) {
+#pragma omp critical(pcr_pro_front_end_error)
+      if (!error) error = std::current_exception();
+    }
+  }
+  if (error) std::rethrow_exception(error);
 }
 
 // FNV-1a over 8-byte words: every pixel counts, ~0.3 ms for a 640 x 480 image.
@@ -209,26 +227,28 @@ void KeyframeFrontEnd::matchPairs(const std::vector<const MapKeyframe*>& src, co
   auto t = Clock::now();
   const std::size_t first = out->pairs.size();
   out->pairs.resize(first + pairs.size());
-  for (std::size_t k = 0; k < pairs.size(); ++k) {
+  // Each pair's matching and relative pose are seeded of their own (the descriptor index and
+  // RANSAC), so the pairs run in parallel with the same results as in turn.
+  forEachInParallel(pairs.size(), [&](std::size_t k) {
     CandidatePair& c = out->pairs[first + k];
     c.source = src[pairs[k].first];
     c.target = tgt[pairs[k].second];
     if (!votes.empty()) c.votes = votes[pairs[k].first][pairs[k].second];
     c.matches = matchFeatures(*tgt_features[pairs[k].second], *src_features[pairs[k].first], options_.matching);
-  }
+  });
   out->features_ms += msSince(t);
 
   t = Clock::now();
-  for (std::size_t k = first; k < out->pairs.size(); ++k) {
-    CandidatePair& c = out->pairs[k];
+  forEachInParallel(pairs.size(), [&](std::size_t k) {
+    CandidatePair& c = out->pairs[first + k];
     if (static_cast<int>(c.matches.size()) < options_.matching.min_matches) {
       c.pose.status = Status::kNotEnoughMatches;
       c.pose.message = std::to_string(c.matches.size()) + " feature matches < matching.min_matches " +
                        std::to_string(options_.matching.min_matches);
-      continue;
+      return;
     }
     c.pose = keyframePairPose(c.matches, target_camera, source_camera, options_.relative_pose);
-  }
+  });
   out->relative_pose_ms += msSince(t);
   std::stable_sort(out->pairs.begin(), out->pairs.end(), [](const CandidatePair& a, const CandidatePair& b) {
     const bool va = a.pose.status == Status::kOk, vb = b.pose.status == Status::kOk;
