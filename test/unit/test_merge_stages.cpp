@@ -3,6 +3,7 @@
 // refinement started at the truth, the noise floor, the gates, and the symmetry of a -> b and
 // b -> a. Realistic inputs come from the project's simulator (no data from elsewhere).
 #include <gtest/gtest.h>
+#include <omp.h>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
@@ -165,6 +166,37 @@ TEST_F(SimWorld, SecondMergeComputesNoFeaturesAndAResentKeyframeIsRecomputed) {
   pipeline.featureCache().invalidate("agent_b", map(1).keyframes[0].id);
   const MergeResult fourth = pipeline.merge(map(1), changed, MergeRequest(), "agent_b", "agent_a");
   EXPECT_EQ(fourth.diagnostics.features_computed, 1);
+}
+
+// The front end matches the candidate pairs and runs their RANSAC on the OpenMP threads; each
+// pair's descriptor index and RANSAC are seeded of their own, so one thread and two give the same
+// pairs, votes, matches and poses, in the same order.
+TEST_F(SimWorld, TheFrontEndGivesTheSameAnswerOnOneThreadAsOnTwo) {
+  const MergeOptions options;
+  KeyframeFrontEnd front(options);
+  const int threads = omp_get_max_threads();
+  omp_set_num_threads(1);
+  const FrontEndResult one = front.run(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
+  omp_set_num_threads(2);
+  const FrontEndResult two = front.run(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
+  omp_set_num_threads(threads);
+  ASSERT_EQ(one.status, Status::kOk) << one.message;
+  // The votes chose among more pairs than are matched in full.
+  ASSERT_GT(one.keyframe_pairs, options.merge.max_candidate_pairs);
+  ASSERT_EQ(one.pairs.size(), two.pairs.size());
+  EXPECT_EQ(one.verified, two.verified);
+  EXPECT_GT(one.verified, 0);
+  for (std::size_t k = 0; k < one.pairs.size(); ++k) {
+    const CandidatePair& a = one.pairs[k];
+    const CandidatePair& b = two.pairs[k];
+    EXPECT_EQ(a.source->id, b.source->id) << k;
+    EXPECT_EQ(a.target->id, b.target->id) << k;
+    EXPECT_EQ(a.votes, b.votes) << k;
+    EXPECT_EQ(a.matches.size(), b.matches.size()) << k;
+    EXPECT_EQ(a.pose.status, b.pose.status) << k;
+    EXPECT_EQ(a.pose.inlier_count, b.pose.inlier_count) << k;
+    EXPECT_EQ(a.pose.rotation, b.pose.rotation) << k;
+  }
 }
 
 TEST_F(SimWorld, APairOfTheWrongKeyframesIsDroppedAndReported) {
