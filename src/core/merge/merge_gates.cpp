@@ -135,14 +135,11 @@ CloudVote cloudVote(const KeyframeEstimate& keyframes, const Refinement& refinem
 // that converged: otherwise whether the keyframe estimate is refused or merged would turn on
 // where the ICP happened to be when it ran out of iterations (on 7-Scenes overlap_320_840 it
 // did: refused when the ICP converged, merged 11 deg from the truth when it did not).
-// @param[in] vote the overlaps when already measured (null: measured here)
+// @param[in] vote the overlaps at the two estimates (cloudVote())
 // @return true when refused (v complete)
-bool cloudsPreferRefinement(const KeyframeEstimate& keyframes, const Refinement& refinement,
-                            const MapRegistration& registration, const MergeGateOptions& options,
-                            const std::string& why, const char* what, const CloudVote* vote, GateVerdict* v) {
-  const CloudVote measured = vote ? *vote : cloudVote(keyframes, refinement, registration, options);
-  const double overlap_keyframes = measured.keyframes, overlap_refined = measured.refined;
-  if (!measured.prefersRefinement()) return false;
+bool cloudsPreferRefinement(const CloudVote& vote, const std::string& why, const char* what, GateVerdict* v) {
+  const double overlap_keyframes = vote.keyframes, overlap_refined = vote.refined;
+  if (!vote.prefersRefinement()) return false;
   v->status = Status::kIcpNotConverged;
   v->message = "refused: " + why + ", and the clouds fit " + what + " better (overlap " + fmt(100 * overlap_refined) +
                " % against " + fmt(100 * overlap_keyframes) +
@@ -172,7 +169,7 @@ bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refineme
   // two estimates exclude each other and the merge was refused.
   const bool beyond = v->rotation_correction_deg > options.max_icp_rotation_correction_deg ||
                       v->scale_disagreement > options.max_scale_disagreement;
-  std::optional<CloudVote> vote;
+  std::optional<CloudVote> vote;  // the clouds' vote, measured once
   if (beyond) {
     vote = cloudVote(keyframes, refinement, registration, options);
     const double overlap_keyframes = vote->keyframes, overlap_refined = vote->refined;
@@ -200,10 +197,8 @@ bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refineme
     v->overlap = registration.overlap(v->estimate, options.overlap_distance_factor);
     return true;
   }
-  if (cloudsPreferRefinement(keyframes, refinement, registration, options, why, "the refined estimate",
-                             vote ? &*vote : nullptr, v)) {
-    return true;
-  }
+  if (!vote) vote = cloudVote(keyframes, refinement, registration, options);
+  if (cloudsPreferRefinement(*vote, why, "the refined estimate", v)) return true;
   const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
   v->covariance = coveringCovariance(keyframes.covariance, d * d.transpose() + 1e-12 * keyframes.covariance);
   return false;
@@ -259,8 +254,8 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
     if (!v.ignored_refinement.empty()) why = v.ignored_refinement;
     // A refinement that ran out of iterations still ended somewhere: the clouds' vote applies.
     if (!refined && refinement.status == Status::kIcpNotConverged && refinement.estimate.matrix().allFinite() &&
-        cloudsPreferRefinement(keyframes, refinement, registration, options_, why, "the refinement's last estimate",
-                               nullptr, &v)) {
+        cloudsPreferRefinement(cloudVote(keyframes, refinement, registration, options_), why,
+                               "the refinement's last estimate", &v)) {
       return v;
     }
   }
