@@ -70,14 +70,22 @@ std::vector<Match> gateMatches(const std::vector<Match>& all, const IcpOptions& 
   return kept;
 }
 
+// Squared distance from each moved source point to its nearest target point [target units²], as
+// the forward matching measured it; NaN where it did not (points outside a coarse level's
+// subset). The reverse matching's reciprocal check asks the same question of the same moved
+// points, and takes the answer from here instead of searching the target's tree again.
+using NearestTargetD2 = std::vector<double>;
+
 // Nearest neighbour of every transformed source point, then the overlap-aware checks
 // (reciprocal, fixed and adaptive distance gates) and the trim. Dynamic chunks: a core busy with
 // another process (SLAM runs beside us) then slows the loop down to one thread's speed instead of
-// stalling it at the barrier.
+// stalling it at the barrier. `*nearest_d2` (when given) receives every measured distance.
 std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, const IcpOptions& o,
-                                  const std::vector<Eigen::Index>* subset = nullptr) {
+                                  const std::vector<Eigen::Index>* subset = nullptr,
+                                  NearestTargetD2* nearest_d2 = nullptr) {
   const Eigen::Index n = subset ? static_cast<Eigen::Index>(subset->size()) : moved.cols();
   std::vector<Match> all(static_cast<std::size_t>(n));
+  if (nearest_d2) nearest_d2->assign(static_cast<std::size_t>(moved.cols()), std::numeric_limits<double>::quiet_NaN());
   const bool reciprocal = o.reciprocal && ctx.source != nullptr;
   const Sim3 inverse = ctx.pose.inverse();
   const double tolerance = o.reciprocal_tolerance * ctx.spacing;
@@ -86,6 +94,7 @@ std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, c
     const Eigen::Index i = subset ? (*subset)[static_cast<std::size_t>(k)] : k;
     double d2 = 0.0;
     Eigen::Index j = ctx.target.nearest(moved.col(i), &d2);
+    if (j >= 0 && nearest_d2) (*nearest_d2)[static_cast<std::size_t>(i)] = d2;
     if (j >= 0 && reciprocal) {
       // Distance from target j to its nearest source point, in target units.
       double back2 = 0.0;
@@ -101,9 +110,11 @@ std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, c
 // Symmetric matching: the nearest moved source point of each of the given target points, with
 // the same checks mirrored (the source point's own nearest target point must be about as close).
 // A target point beyond the source's border pulls the source outwards as a source point beyond
-// the target's border pulls it inwards: together the border pulls cancel.
+// the target's border pulls it inwards: together the border pulls cancel. The source point's own
+// nearest target distance comes from `forward` where the forward matching measured it.
 std::vector<Match> reverseMatchAndReject(const Cloud& moved, const MatchContext& ctx, const KdTree& source_tree,
-                                         const std::vector<Eigen::Index>& targets, const IcpOptions& o) {
+                                         const std::vector<Eigen::Index>& targets, const IcpOptions& o,
+                                         const NearestTargetD2& forward) {
   const auto n = static_cast<Eigen::Index>(targets.size());
   std::vector<Match> all(targets.size());
   const Sim3 inverse = ctx.pose.inverse();
@@ -116,8 +127,9 @@ std::vector<Match> reverseMatchAndReject(const Cloud& moved, const MatchContext&
     Eigen::Index i = source_tree.nearest(inverse.apply(Eigen::Vector3d(target.col(j))), &d2s);
     const double d2 = d2s * ctx.pose.scale() * ctx.pose.scale();
     if (i >= 0 && o.reciprocal) {
-      double back2 = 0.0;
-      ctx.target.nearest(moved.col(i), &back2);
+      const auto si = static_cast<std::size_t>(i);
+      double back2 = si < forward.size() ? forward[si] : std::numeric_limits<double>::quiet_NaN();
+      if (std::isnan(back2)) ctx.target.nearest(moved.col(i), &back2);
       if (std::sqrt(d2) > std::sqrt(back2) + tolerance) i = -1;
     }
     all[static_cast<std::size_t>(k)] = Match{i, j, d2, 1.0};
@@ -599,7 +611,7 @@ constexpr unsigned kCoarseSeed = 42;
 // One minimisation step from the matches `*m` (weighted in place by the robust kernel):
 // point-to-point with its log-scale step clamped, or point-to-plane (symmetric when configured).
 Sim3 levelStep(const Cloud& moved, const MatchContext& ctx, const LevelEnv& env, const LevelSource& level,
-               double max_log_step, const Sim3& current, std::vector<Match>* m_io) {
+               double max_log_step, const Sim3& current, const NearestTargetD2& nearest_d2, std::vector<Match>* m_io) {
   const IcpOptions& o = env.o;
   const Cloud& target = env.tree.points();
   std::vector<Match>& m = *m_io;
@@ -620,7 +632,7 @@ Sim3 levelStep(const Cloud& moved, const MatchContext& ctx, const LevelEnv& env,
     env.normals.ensure(m);
     std::vector<Match> reverse;
     if (symmetric) {
-      reverse = reverseMatchAndReject(moved, ctx, *level.tree, level.reverse_targets, o);
+      reverse = reverseMatchAndReject(moved, ctx, *level.tree, level.reverse_targets, o, nearest_d2);
       std::vector<Eigen::Index> used;
       for (const Match& r : reverse) used.push_back(r.source);
       level.normals->ensureIndices(used);
@@ -703,14 +715,15 @@ LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double toler
     const Cloud moved = current->apply(source);
     const MatchContext ctx{env.tree, level.tree.get(), *current,
                            std::max(env.target_spacing, level.spacing * current->scale())};
-    std::vector<Match> m = matchAndReject(moved, ctx, o, subset);
+    NearestTargetD2 nearest_d2;
+    std::vector<Match> m = matchAndReject(moved, ctx, o, subset, &nearest_d2);
     if (static_cast<int>(m.size()) < o.min_correspondences) {
       out.failed = true;
       out.message = "icp: only " + std::to_string(m.size()) + " correspondences at iteration " + std::to_string(iter) +
                     " (need " + std::to_string(o.min_correspondences) + ")";
       return out;
     }
-    const Sim3 step = levelStep(moved, ctx, env, level, max_log_step, *current, &m);
+    const Sim3 step = levelStep(moved, ctx, env, level, max_log_step, *current, nearest_d2, &m);
     Sim3 next = step * *current;
     if (!next.matrix().allFinite()) {
       out.failed = true;
@@ -916,12 +929,13 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   const bool source_checks = o.reciprocal || symmetric;
   const MatchContext ctx{tree, source_checks ? level.tree.get() : nullptr, current,
                          std::max(env.target_spacing, (source_checks ? level.spacing : 0.0) * current.scale())};
-  std::vector<Match> m = matchAndReject(moved, ctx, o);
+  NearestTargetD2 nearest_d2;
+  std::vector<Match> m = matchAndReject(moved, ctx, o, nullptr, &nearest_d2);
   // The covariance's observability check needs target normals for both metrics.
   normals.ensure(m);
   std::vector<Match> reverse;
   if (symmetric) {
-    reverse = reverseMatchAndReject(moved, ctx, *level.tree, targetSample(target.cols(), source.cols()), o);
+    reverse = reverseMatchAndReject(moved, ctx, *level.tree, targetSample(target.cols(), source.cols()), o, nearest_d2);
     std::vector<Eigen::Index> used;
     for (const Match& r : reverse) used.push_back(r.source);
     level.normals->ensureIndices(used);
