@@ -37,6 +37,16 @@ class KdTree {
   Eigen::Index nearest(const Eigen::Vector3d& query, double* squared_distance) const;
 
   /**
+   * @brief Whether some point lies closer to the query than a given distance (strictly). The
+   * search stops at the first such point, and prunes by the distance from the start: cheaper than
+   * nearest() when only the comparison matters.
+   * @param[in] query point [cloud units]
+   * @param[in] squared_radius squared distance [cloud units²]; <= 0 gives false
+   * @return true when a point's squared distance is below squared_radius
+   */
+  bool anyCloserThan(const Eigen::Vector3d& query, double squared_radius) const;
+
+  /**
    * @brief k nearest neighbours, closest first.
    * @param[in] query point
    * @param[in] k number of neighbours wanted

@@ -19,6 +19,23 @@ struct CloudAdaptor {
   }
 };
 
+// A nanoflann result set that stops the search at the first point closer than its radius.
+class FirstCloser {
+ public:
+  explicit FirstCloser(double squared_radius) : radius2_(squared_radius) {}
+  double worstDist() const { return radius2_; }
+  bool addPoint(double /*dist*/, uint32_t /*index*/) {
+    found_ = true;
+    return false;  // stop the search
+  }
+  bool full() const { return found_; }
+  bool found() const { return found_; }
+
+ private:
+  double radius2_;
+  bool found_ = false;
+};
+
 using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, CloudAdaptor>, CloudAdaptor, 3,
                                                  uint32_t>;
 }  // namespace
@@ -52,6 +69,13 @@ Eigen::Index KdTree::nearest(const Eigen::Vector3d& query, double* squared_dista
   impl_->tree->findNeighbors(result, query.data(), nanoflann::SearchParams());
   if (squared_distance) *squared_distance = d2;
   return static_cast<Eigen::Index>(index);
+}
+
+bool KdTree::anyCloserThan(const Eigen::Vector3d& query, double squared_radius) const {
+  if (!impl_->tree || !(squared_radius > 0.0)) return false;
+  FirstCloser result(squared_radius);
+  impl_->tree->findNeighbors(result, query.data(), nanoflann::SearchParams());
+  return result.found();
 }
 
 void KdTree::knn(const Eigen::Vector3d& query, int k, std::vector<Eigen::Index>* indices,

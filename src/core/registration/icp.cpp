@@ -96,11 +96,17 @@ std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, c
     Eigen::Index j = ctx.target.nearest(moved.col(i), &d2);
     if (j >= 0 && nearest_d2) (*nearest_d2)[static_cast<std::size_t>(i)] = d2;
     if (j >= 0 && reciprocal) {
-      // Distance from target j to its nearest source point, in target units.
-      double back2 = 0.0;
-      ctx.source->nearest(inverse.apply(Eigen::Vector3d(ctx.target.points().col(j))), &back2);
-      const double back = std::sqrt(back2) * ctx.pose.scale();
-      if (std::sqrt(d2) > back + tolerance) j = -1;
+      // Rejected when target j has a source point nearer than this one by more than the
+      // tolerance: some source point closer to j than `reach` (target units). No source point
+      // can be when this one is within the tolerance.
+      const double reach = std::sqrt(d2) - tolerance;
+      if (reach > 0.0) {
+        const double reach_source = reach / ctx.pose.scale();
+        if (ctx.source->anyCloserThan(inverse.apply(Eigen::Vector3d(ctx.target.points().col(j))),
+                                      reach_source * reach_source)) {
+          j = -1;
+        }
+      }
     }
     all[static_cast<std::size_t>(k)] = Match{i, j, d2, 1.0};
   }
