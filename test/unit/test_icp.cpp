@@ -1,13 +1,63 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 
+#include "pcr_pro/geometry/kdtree.h"
 #include "pcr_pro/io/cloud_io.h"
 #include "pcr_pro/registration/icp.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {
 namespace {
+
+// The ICP's searches that start from a hint or stop at the first point within a distance must
+// answer exactly as the plain nearest-neighbour search does (checked by brute force too).
+Cloud randomCloud(int n, std::mt19937* rng) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Cloud c(3, n);
+  for (int i = 0; i < n; ++i) c.col(i) = Eigen::Vector3d(u(*rng), u(*rng), 0.3 * u(*rng));
+  return c;
+}
+
+TEST(KdTree, ASearchStartedFromAHintFindsTheNearestPoint) {
+  std::mt19937 rng(3);
+  const Cloud cloud = randomCloud(3000, &rng);
+  const KdTree tree(cloud);
+  std::uniform_int_distribution<Eigen::Index> pick(0, cloud.cols() - 1);
+  std::uniform_real_distribution<double> u(-1.2, 1.2);
+  for (int q = 0; q < 400; ++q) {
+    const Eigen::Vector3d query(u(rng), u(rng), u(rng));
+    Eigen::Index brute = 0;
+    (cloud.colwise() - query).colwise().squaredNorm().minCoeff(&brute);
+    double plain_d2 = 0.0;
+    const Eigen::Index plain = tree.nearest(query, &plain_d2);
+    ASSERT_EQ(plain, brute);
+    for (const Eigen::Index hint : {Eigen::Index{-1}, pick(rng), plain, cloud.cols()}) {
+      double d2 = -1.0;
+      EXPECT_EQ(tree.nearest(query, &d2, hint), plain) << "hint " << hint;
+      EXPECT_EQ(d2, plain_d2) << "hint " << hint;
+    }
+  }
+}
+
+TEST(KdTree, AnyCloserThanSaysWhetherTheNearestPointIsNearer) {
+  std::mt19937 rng(4);
+  const Cloud cloud = randomCloud(2000, &rng);
+  const KdTree tree(cloud);
+  std::uniform_real_distribution<double> u(-1.2, 1.2);
+  for (int q = 0; q < 300; ++q) {
+    const Eigen::Vector3d query(u(rng), u(rng), u(rng));
+    double d2 = 0.0;
+    tree.nearest(query, &d2);
+    for (const double f : {0.5, 1.0 - 1e-9, 1.0 + 1e-9, 2.0}) {
+      EXPECT_EQ(tree.anyCloserThan(query, f * d2), d2 < f * d2) << "radius factor " << f;
+    }
+  }
+  EXPECT_FALSE(tree.anyCloserThan(cloud.col(0), 0.0));  // a radius of 0 holds no point
+  EXPECT_TRUE(tree.anyCloserThan(cloud.col(0), 1e-12));  // the point itself is at 0
+  EXPECT_FALSE(KdTree(Cloud(3, 0)).anyCloserThan(Eigen::Vector3d::Zero(), 1.0));
+}
 
 using test::Errors;
 

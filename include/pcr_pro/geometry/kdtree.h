@@ -37,6 +37,17 @@ class KdTree {
   Eigen::Index nearest(const Eigen::Vector3d& query, double* squared_distance) const;
 
   /**
+   * @brief Nearest neighbour, with a point known to be near: the search starts from its distance
+   * and prunes everything farther (the result is the same as nearest()'s, found sooner when the
+   * hint is close, e.g. last iteration's neighbour of a point that moved little).
+   * @param[in] query point [cloud units]
+   * @param[out] squared_distance squared distance to the nearest point [cloud units²]
+   * @param[in] hint index of any point of the tree, or -1 for none
+   * @return index of the nearest point, or -1 when the tree is empty
+   */
+  Eigen::Index nearest(const Eigen::Vector3d& query, double* squared_distance, Eigen::Index hint) const;
+
+  /**
    * @brief Whether some point lies closer to the query than a given distance (strictly). The
    * search stops at the first such point, and prunes by the distance from the start: cheaper than
    * nearest() when only the comparison matters.

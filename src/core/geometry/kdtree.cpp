@@ -3,6 +3,7 @@
 #include <nanoflann.hpp>
 
 #include <cstdint>
+#include <limits>
 
 namespace pcr_pro {
 namespace {
@@ -67,6 +68,25 @@ Eigen::Index KdTree::nearest(const Eigen::Vector3d& query, double* squared_dista
   nanoflann::KNNResultSet<double, uint32_t> result(1);
   result.init(&index, &d2);
   impl_->tree->findNeighbors(result, query.data(), nanoflann::SearchParams());
+  if (squared_distance) *squared_distance = d2;
+  return static_cast<Eigen::Index>(index);
+}
+
+Eigen::Index KdTree::nearest(const Eigen::Vector3d& query, double* squared_distance, Eigen::Index hint) const {
+  if (!impl_->tree || hint < 0 || hint >= impl_->points.cols()) return nearest(query, squared_distance);
+  // The hint's distance, widened by far more than the rounding of nanoflann's own sum, bounds the
+  // search from the start: the hint itself (or a nearer point) is always found.
+  constexpr double kWiden = 1.0 + 1e-9;
+  const double bound = (impl_->points.col(hint) - query).squaredNorm() * kWiden;
+  uint32_t index = static_cast<uint32_t>(hint);
+  double d2 = 0.0;
+  nanoflann::KNNResultSet<double, uint32_t> result(1);
+  result.init(&index, &d2);
+  d2 = bound > 0.0 ? bound : std::numeric_limits<double>::min();
+  impl_->tree->findNeighbors(result, query.data(), nanoflann::SearchParams());
+  if (result.size() == 0) {  // not even the hint within the bound (cannot happen): search in full
+    return nearest(query, squared_distance);
+  }
   if (squared_distance) *squared_distance = d2;
   return static_cast<Eigen::Index>(index);
 }

@@ -80,12 +80,15 @@ using NearestTargetD2 = std::vector<double>;
 // (reciprocal, fixed and adaptive distance gates) and the trim. Dynamic chunks: a core busy with
 // another process (SLAM runs beside us) then slows the loop down to one thread's speed instead of
 // stalling it at the barrier. `*nearest_d2` (when given) receives every measured distance.
+// `*hints` (when given, one per source point) holds each point's last nearest target point, which
+// starts its search, and receives the new one.
 std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, const IcpOptions& o,
                                   const std::vector<Eigen::Index>* subset = nullptr,
-                                  NearestTargetD2* nearest_d2 = nullptr) {
+                                  NearestTargetD2* nearest_d2 = nullptr, std::vector<Eigen::Index>* hints = nullptr) {
   const Eigen::Index n = subset ? static_cast<Eigen::Index>(subset->size()) : moved.cols();
   std::vector<Match> all(static_cast<std::size_t>(n));
   if (nearest_d2) nearest_d2->assign(static_cast<std::size_t>(moved.cols()), std::numeric_limits<double>::quiet_NaN());
+  if (hints && hints->size() != static_cast<std::size_t>(moved.cols())) hints->assign(static_cast<std::size_t>(moved.cols()), -1);
   const bool reciprocal = o.reciprocal && ctx.source != nullptr;
   const Sim3 inverse = ctx.pose.inverse();
   const double tolerance = o.reciprocal_tolerance * ctx.spacing;
@@ -93,8 +96,10 @@ std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, c
   for (Eigen::Index k = 0; k < n; ++k) {
     const Eigen::Index i = subset ? (*subset)[static_cast<std::size_t>(k)] : k;
     double d2 = 0.0;
-    Eigen::Index j = ctx.target.nearest(moved.col(i), &d2);
-    if (j >= 0 && nearest_d2) (*nearest_d2)[static_cast<std::size_t>(i)] = d2;
+    const auto si = static_cast<std::size_t>(i);
+    Eigen::Index j = ctx.target.nearest(moved.col(i), &d2, hints ? (*hints)[si] : -1);
+    if (hints) (*hints)[si] = j;
+    if (j >= 0 && nearest_d2) (*nearest_d2)[si] = d2;
     if (j >= 0 && reciprocal) {
       // Rejected when target j has a source point nearer than this one by more than the
       // tolerance: some source point closer to j than `reach` (target units). No source point
@@ -117,12 +122,14 @@ std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, c
 // the same checks mirrored (the source point's own nearest target point must be about as close).
 // A target point beyond the source's border pulls the source outwards as a source point beyond
 // the target's border pulls it inwards: together the border pulls cancel. The source point's own
-// nearest target distance comes from `forward` where the forward matching measured it.
+// nearest target distance comes from `forward` where the forward matching measured it. `*hints`
+// (one per entry of `targets`) as in matchAndReject().
 std::vector<Match> reverseMatchAndReject(const Cloud& moved, const MatchContext& ctx, const KdTree& source_tree,
                                          const std::vector<Eigen::Index>& targets, const IcpOptions& o,
-                                         const NearestTargetD2& forward) {
+                                         const NearestTargetD2& forward, std::vector<Eigen::Index>* hints) {
   const auto n = static_cast<Eigen::Index>(targets.size());
   std::vector<Match> all(targets.size());
+  if (hints->size() != targets.size()) hints->assign(targets.size(), -1);
   const Sim3 inverse = ctx.pose.inverse();
   const double tolerance = o.reciprocal_tolerance * ctx.spacing;
   const Cloud& target = ctx.target.points();
@@ -130,7 +137,9 @@ std::vector<Match> reverseMatchAndReject(const Cloud& moved, const MatchContext&
   for (Eigen::Index k = 0; k < n; ++k) {
     const Eigen::Index j = targets[static_cast<std::size_t>(k)];
     double d2s = 0.0;
-    Eigen::Index i = source_tree.nearest(inverse.apply(Eigen::Vector3d(target.col(j))), &d2s);
+    const auto sk = static_cast<std::size_t>(k);
+    Eigen::Index i = source_tree.nearest(inverse.apply(Eigen::Vector3d(target.col(j))), &d2s, (*hints)[sk]);
+    (*hints)[sk] = i;
     const double d2 = d2s * ctx.pose.scale() * ctx.pose.scale();
     if (i >= 0 && o.reciprocal) {
       const auto si = static_cast<std::size_t>(i);
@@ -585,11 +594,14 @@ std::vector<Eigen::Index> targetSample(Eigen::Index size, Eigen::Index count) {
 // normals, spacing and thickness: built once and shared by every level, which differ only in
 // which source points they move (a coarse level moves a subset: the same correspondences the
 // whole sample has, fewer of them); and a sample of the target of the level's size (symmetric
-// matching), set per level.
+// matching), set per level. The hints are the last iteration's nearest neighbours, which start
+// the next iteration's searches (the points move little): one per source point (its nearest target
+// point), one per entry of reverse_targets (its nearest source point).
 struct LevelSource {
   std::unique_ptr<KdTree> tree;
   std::unique_ptr<LazyNormals> normals;
   std::vector<Eigen::Index> reverse_targets;
+  std::vector<Eigen::Index> forward_hints, reverse_hints;
   double spacing = 0.0;
   double thickness2 = 0.0;  // surfaceThickness2() of the level's source [source units²]
 };
@@ -617,7 +629,8 @@ constexpr unsigned kCoarseSeed = 42;
 // One minimisation step from the matches `*m` (weighted in place by the robust kernel):
 // point-to-point with its log-scale step clamped, or point-to-plane (symmetric when configured).
 Sim3 levelStep(const Cloud& moved, const MatchContext& ctx, const LevelEnv& env, const LevelSource& level,
-               double max_log_step, const Sim3& current, const NearestTargetD2& nearest_d2, std::vector<Match>* m_io) {
+               double max_log_step, const Sim3& current, const NearestTargetD2& nearest_d2,
+               std::vector<Eigen::Index>* reverse_hints, std::vector<Match>* m_io) {
   const IcpOptions& o = env.o;
   const Cloud& target = env.tree.points();
   std::vector<Match>& m = *m_io;
@@ -638,7 +651,7 @@ Sim3 levelStep(const Cloud& moved, const MatchContext& ctx, const LevelEnv& env,
     env.normals.ensure(m);
     std::vector<Match> reverse;
     if (symmetric) {
-      reverse = reverseMatchAndReject(moved, ctx, *level.tree, level.reverse_targets, o, nearest_d2);
+      reverse = reverseMatchAndReject(moved, ctx, *level.tree, level.reverse_targets, o, nearest_d2, reverse_hints);
       std::vector<Eigen::Index> used;
       for (const Match& r : reverse) used.push_back(r.source);
       level.normals->ensureIndices(used);
@@ -713,7 +726,13 @@ LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double toler
   const Eigen::Vector3d source_centroid = source.rowwise().mean();
   const double target_radius = env.target_radius;
   const auto moving = static_cast<Eigen::Index>(subset ? subset->size() : source.cols());
-  if (level.normals) level.reverse_targets = targetSample(env.tree.points().cols(), moving);
+  if (level.normals) {
+    level.reverse_targets = targetSample(env.tree.points().cols(), moving);
+    level.reverse_hints.assign(level.reverse_targets.size(), -1);
+  }
+  if (level.forward_hints.size() != static_cast<std::size_t>(source.cols())) {
+    level.forward_hints.assign(static_cast<std::size_t>(source.cols()), -1);
+  }
   Twist previous_twist = Twist::Zero();
   bool has_previous = false, extrapolated = false;
   for (; out.iterations < o.max_iterations; ++out.iterations) {
@@ -722,14 +741,14 @@ LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double toler
     const MatchContext ctx{env.tree, level.tree.get(), *current,
                            std::max(env.target_spacing, level.spacing * current->scale())};
     NearestTargetD2 nearest_d2;
-    std::vector<Match> m = matchAndReject(moved, ctx, o, subset, &nearest_d2);
+    std::vector<Match> m = matchAndReject(moved, ctx, o, subset, &nearest_d2, &level.forward_hints);
     if (static_cast<int>(m.size()) < o.min_correspondences) {
       out.failed = true;
       out.message = "icp: only " + std::to_string(m.size()) + " correspondences at iteration " + std::to_string(iter) +
                     " (need " + std::to_string(o.min_correspondences) + ")";
       return out;
     }
-    const Sim3 step = levelStep(moved, ctx, env, level, max_log_step, *current, nearest_d2, &m);
+    const Sim3 step = levelStep(moved, ctx, env, level, max_log_step, *current, nearest_d2, &level.reverse_hints, &m);
     Sim3 next = step * *current;
     if (!next.matrix().allFinite()) {
       out.failed = true;
@@ -936,12 +955,14 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   const MatchContext ctx{tree, source_checks ? level.tree.get() : nullptr, current,
                          std::max(env.target_spacing, (source_checks ? level.spacing : 0.0) * current.scale())};
   NearestTargetD2 nearest_d2;
-  std::vector<Match> m = matchAndReject(moved, ctx, o, nullptr, &nearest_d2);
+  std::vector<Match> m = matchAndReject(moved, ctx, o, nullptr, &nearest_d2, &level.forward_hints);
   // The covariance's observability check needs target normals for both metrics.
   normals.ensure(m);
   std::vector<Match> reverse;
   if (symmetric) {
-    reverse = reverseMatchAndReject(moved, ctx, *level.tree, targetSample(target.cols(), source.cols()), o, nearest_d2);
+    const std::vector<Eigen::Index> targets = targetSample(target.cols(), source.cols());
+    if (level.reverse_hints.size() != targets.size()) level.reverse_hints.assign(targets.size(), -1);
+    reverse = reverseMatchAndReject(moved, ctx, *level.tree, targets, o, nearest_d2, &level.reverse_hints);
     std::vector<Eigen::Index> used;
     for (const Match& r : reverse) used.push_back(r.source);
     level.normals->ensureIndices(used);
