@@ -54,7 +54,7 @@ TEST(KdTree, AnyCloserThanSaysWhetherTheNearestPointIsNearer) {
       EXPECT_EQ(tree.anyCloserThan(query, f * d2), d2 < f * d2) << "radius factor " << f;
     }
   }
-  EXPECT_FALSE(tree.anyCloserThan(cloud.col(0), 0.0));  // a radius of 0 holds no point
+  EXPECT_FALSE(tree.anyCloserThan(cloud.col(0), 0.0));   // a radius of 0 holds no point
   EXPECT_TRUE(tree.anyCloserThan(cloud.col(0), 1e-12));  // the point itself is at 0
   EXPECT_FALSE(KdTree(Cloud(3, 0)).anyCloserThan(Eigen::Vector3d::Zero(), 1.0));
 }

@@ -87,8 +87,9 @@ std::vector<Match> matchAndReject(const Cloud& moved, const MatchContext& ctx, c
                                   NearestTargetD2* nearest_d2 = nullptr, std::vector<Eigen::Index>* hints = nullptr) {
   const Eigen::Index n = subset ? static_cast<Eigen::Index>(subset->size()) : moved.cols();
   std::vector<Match> all(static_cast<std::size_t>(n));
-  if (nearest_d2) nearest_d2->assign(static_cast<std::size_t>(moved.cols()), std::numeric_limits<double>::quiet_NaN());
-  if (hints && hints->size() != static_cast<std::size_t>(moved.cols())) hints->assign(static_cast<std::size_t>(moved.cols()), -1);
+  const auto points = static_cast<std::size_t>(moved.cols());
+  if (nearest_d2) nearest_d2->assign(points, std::numeric_limits<double>::quiet_NaN());
+  if (hints && hints->size() != points) hints->assign(points, -1);
   const bool reciprocal = o.reciprocal && ctx.source != nullptr;
   const Sim3 inverse = ctx.pose.inverse();
   const double tolerance = o.reciprocal_tolerance * ctx.spacing;
