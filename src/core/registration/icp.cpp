@@ -731,9 +731,6 @@ LevelOutcome iterateLevel(const Cloud& source, const LevelEnv& env, double toler
     level.reverse_targets = targetSample(env.tree.points().cols(), moving);
     level.reverse_hints.assign(level.reverse_targets.size(), -1);
   }
-  if (level.forward_hints.size() != static_cast<std::size_t>(source.cols())) {
-    level.forward_hints.assign(static_cast<std::size_t>(source.cols()), -1);
-  }
   Twist previous_twist = Twist::Zero();
   bool has_previous = false, extrapolated = false;
   for (; out.iterations < o.max_iterations; ++out.iterations) {
@@ -961,9 +958,9 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   normals.ensure(m);
   std::vector<Match> reverse;
   if (symmetric) {
-    const std::vector<Eigen::Index> targets = targetSample(target.cols(), source.cols());
-    if (level.reverse_hints.size() != targets.size()) level.reverse_hints.assign(targets.size(), -1);
-    reverse = reverseMatchAndReject(moved, ctx, *level.tree, targets, o, nearest_d2, &level.reverse_hints);
+    // The whole sample's target sample, as its level drew it (targetSample(target, source size)).
+    reverse =
+        reverseMatchAndReject(moved, ctx, *level.tree, level.reverse_targets, o, nearest_d2, &level.reverse_hints);
     std::vector<Eigen::Index> used;
     for (const Match& r : reverse) used.push_back(r.source);
     level.normals->ensureIndices(used);
