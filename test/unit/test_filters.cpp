@@ -84,6 +84,28 @@ TEST(Filters, RandomSamplingKeepsAboutTheRatio) {
   EXPECT_EQ(randomSamplingFilter(c, o).cols(), s.cols());  // deterministic seed
 }
 
+// The ICP's whole_source mode moves the sample's columns of the whole source: the indices must be
+// the columns the filter keeps, distinct and increasing, and all of them when the cap is off or not reached.
+TEST(Filters, MaxPointsIndicesAreTheColumnsTheFilterKeeps) {
+  Cloud c(3, 1000);
+  for (int i = 0; i < 1000; ++i) c.col(i) << static_cast<double>(i), 0.5 * i, -1.0 * i;
+  MaxPointsOptions o;
+  o.max_points = 137;
+  o.seed = 9;
+  const std::vector<Eigen::Index> idx = maxPointsIndices(c.cols(), o);
+  const Cloud kept = maxPointsFilter(c, o);
+  ASSERT_EQ(static_cast<Eigen::Index>(idx.size()), kept.cols());
+  ASSERT_EQ(kept.cols(), 137);
+  for (std::size_t k = 0; k < idx.size(); ++k) {
+    EXPECT_EQ(kept.col(static_cast<Eigen::Index>(k)), c.col(idx[k])) << "entry " << k;
+    if (k > 0) EXPECT_LT(idx[k - 1], idx[k]);
+  }
+  o.max_points = 0;
+  EXPECT_EQ(maxPointsIndices(c.cols(), o).size(), 1000u);
+  o.max_points = 5000;
+  EXPECT_EQ(maxPointsIndices(c.cols(), o).size(), 1000u);
+}
+
 TEST(Filters, ChainAppliesInOrderAndValidates) {
   FilterChainOptions chain;
   FilterStep crop;

@@ -101,6 +101,10 @@ Cloud outlierRemovalFilter(const Cloud& cloud, const OutlierRemovalOptions& opti
 Cloud randomSamplingFilter(const Cloud& cloud, const RandomSamplingOptions& options);
 Cloud maxPointsFilter(const Cloud& cloud, const MaxPointsOptions& options);
 
+/// The columns maxPointsFilter() keeps of a cloud of `size` points, in increasing order (all of
+/// them when the filter is off or the cloud is small enough).
+std::vector<Eigen::Index> maxPointsIndices(Eigen::Index size, const MaxPointsOptions& options);
+
 /**
  * @brief Applies every step of the chain in order.
  * @return the filtered cloud (may be empty if the filters removed everything)

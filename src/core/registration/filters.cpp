@@ -239,13 +239,12 @@ Cloud randomSamplingFilter(const Cloud& cloud, const RandomSamplingOptions& o) {
   return selectColumns(cloud, keep);
 }
 
-Cloud maxPointsFilter(const Cloud& cloud, const MaxPointsOptions& o) {
+std::vector<Eigen::Index> maxPointsIndices(Eigen::Index n, const MaxPointsOptions& o) {
   validate(o);
-  const Eigen::Index n = cloud.cols();
-  if (o.max_points == 0 || n <= o.max_points) return cloud;
-  // Partial Fisher-Yates: the first max_points entries become a uniform sample.
-  std::vector<Eigen::Index> order(static_cast<std::size_t>(n));
+  std::vector<Eigen::Index> order(static_cast<std::size_t>(std::max<Eigen::Index>(0, n)));
   for (Eigen::Index i = 0; i < n; ++i) order[static_cast<std::size_t>(i)] = i;
+  if (o.max_points == 0 || n <= o.max_points) return order;
+  // Partial Fisher-Yates: the first max_points entries become a uniform sample.
   std::mt19937 rng(o.seed);
   for (int i = 0; i < o.max_points; ++i) {
     std::uniform_int_distribution<Eigen::Index> pick(i, n - 1);
@@ -253,7 +252,13 @@ Cloud maxPointsFilter(const Cloud& cloud, const MaxPointsOptions& o) {
   }
   order.resize(static_cast<std::size_t>(o.max_points));
   std::sort(order.begin(), order.end());
-  return selectColumns(cloud, order);
+  return order;
+}
+
+Cloud maxPointsFilter(const Cloud& cloud, const MaxPointsOptions& o) {
+  validate(o);
+  if (o.max_points == 0 || cloud.cols() <= o.max_points) return cloud;
+  return selectColumns(cloud, maxPointsIndices(cloud.cols(), o));
 }
 
 Cloud applyFilterChain(const Cloud& cloud, const FilterChainOptions& options) {
