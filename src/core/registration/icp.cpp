@@ -460,6 +460,10 @@ const ParamSchema<IcpOptions>& paramSchema<IcpOptions>() {
   static const ParamSchema<O> schema{"icp", {
       {"sampling.max_source_points", &O::max_source_points, R::atLeast(0), "points",
        "source randomly subsampled to at most this many points; 0 = all"},
+      {"sampling.whole_source", &O::whole_source, R::any(), "",
+       "the source's k-d tree, planes, spacing, thickness and reciprocal check use the whole source cloud, as "
+       "the target's do; max_source_points then only limits the points that move (more accurate on sparse noisy "
+       "maps, slower on dense ones)"},
       {"sampling.coarse_source_points", &O::coarse_source_points, R::atLeast(0), "points",
        "coarse-to-fine: iterate first on this many source points, then 4x as many, ... (10x looser stop check, scale "
        "kept), then on the whole sample; 0 = one level"},
@@ -798,8 +802,8 @@ namespace {
 // Coarse levels: most of the travel from the initial guess on small samples (coarse_source_points,
 // then four times as many, ...), each to a looser differential check; the whole sample then
 // only has to settle the last digits. @return the iterations they took
-int iterateCoarseLevels(const Cloud& source, const LevelEnv& env, const IcpOptions& o, LevelSource& level,
-                        Sim3* current) {
+int iterateCoarseLevels(const Cloud& source, const std::vector<Eigen::Index>* sample, const LevelEnv& env,
+                        const IcpOptions& o, LevelSource& level, Sim3* current) {
   int iter = 0;
   // The coarse levels keep the scale (the whole sample estimates it). They move a random subset
   // of the source points against the whole source's tree, normals and spacing: the same
@@ -811,12 +815,16 @@ int iterateCoarseLevels(const Cloud& source, const LevelEnv& env, const IcpOptio
   rigid.estimate_scale = false;
   const LevelEnv rigid_env{env.tree,      env.normals, rigid,        env.target_radius, env.target_spacing,
                            env.min_scale, env.max_scale, env.anchors, env.target_thickness2};
-  if (o.coarse_source_points > 0 && 2 * static_cast<Eigen::Index>(o.coarse_source_points) < source.cols()) {
-    std::vector<Eigen::Index> order(static_cast<std::size_t>(source.cols()));
+  const Eigen::Index sample_size = sample ? static_cast<Eigen::Index>(sample->size()) : source.cols();
+  if (o.coarse_source_points > 0 && 2 * static_cast<Eigen::Index>(o.coarse_source_points) < sample_size) {
+    std::vector<Eigen::Index> order(static_cast<std::size_t>(sample_size));
     std::iota(order.begin(), order.end(), Eigen::Index{0});
     std::mt19937 rng(kCoarseSeed);
     std::shuffle(order.begin(), order.end(), rng);
-    for (Eigen::Index n = o.coarse_source_points; 2 * n < source.cols(); n *= 4) {
+    if (sample) {
+      for (Eigen::Index& i : order) i = (*sample)[static_cast<std::size_t>(i)];
+    }
+    for (Eigen::Index n = o.coarse_source_points; 2 * n < sample_size; n *= 4) {
       std::vector<Eigen::Index> subset(order.begin(), order.begin() + n);
       std::sort(subset.begin(), subset.end());
       const LevelOutcome c = iterateLevel(source, rigid_env, kCoarseToleranceFactor, iter, level, &subset, current);
@@ -913,7 +921,13 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   if (source_in.cols() == 0) throw InputError("icp: source cloud is empty");
   MaxPointsOptions sampling;
   sampling.max_points = o.max_source_points;
-  const Cloud source = maxPointsFilter(source_in, sampling);
+  // The points that move: the sample itself, or (whole_source) the sample's columns of the whole
+  // source, which then also makes the source's side of the matching.
+  const Cloud source = o.whole_source ? source_in : maxPointsFilter(source_in, sampling);
+  const std::vector<Eigen::Index> sample_indices =
+      o.whole_source ? maxPointsIndices(source_in.cols(), sampling) : std::vector<Eigen::Index>();
+  const std::vector<Eigen::Index>* sample =
+      o.whole_source && static_cast<Eigen::Index>(sample_indices.size()) < source.cols() ? &sample_indices : nullptr;
   const Cloud& target = tree.points();
   if (target.cols() == 0) throw InputError("icp: target cloud is empty");
   IcpResult result;
@@ -931,8 +945,8 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
 
   Sim3 current = initial;
   LevelSource level = levelSource(source, env);
-  int iter = iterateCoarseLevels(source, env, o, level, &current);
-  const LevelOutcome fine = iterateLevel(source, env, 1.0, iter, level, nullptr, &current);
+  int iter = iterateCoarseLevels(source, sample, env, o, level, &current);
+  const LevelOutcome fine = iterateLevel(source, env, 1.0, iter, level, sample, &current);
   iter += fine.iterations;
   if (fine.failed) {
     result.status = Status::kIcpNotConverged;
@@ -953,7 +967,7 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   const MatchContext ctx{tree, source_checks ? level.tree.get() : nullptr, current,
                          std::max(env.target_spacing, (source_checks ? level.spacing : 0.0) * current.scale())};
   NearestTargetD2 nearest_d2;
-  std::vector<Match> m = matchAndReject(moved, ctx, o, nullptr, &nearest_d2, &level.forward_hints);
+  std::vector<Match> m = matchAndReject(moved, ctx, o, sample, &nearest_d2, &level.forward_hints);
   // The covariance's observability check needs target normals for both metrics.
   normals.ensure(m);
   std::vector<Match> reverse;
