@@ -45,7 +45,8 @@ constexpr double kCoarseToleranceFactor = 10.0;
 struct IcpOptions {
   // --- sampling
   /// The source is randomly subsampled (deterministic seed) to at most this many points before
-  /// the iterations [points]; 0 = all. The target is always used whole.
+  /// the iterations (with whole_source: the points that move) [points]; 0 = all. The target is
+  /// always used whole.
   int max_source_points = 10000;
   /// The source's side of the matching (its k-d tree, the planes of symmetric matching, the
   /// reciprocal check, its point spacing and surface thickness) is the whole source cloud, as the

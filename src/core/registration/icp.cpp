@@ -459,7 +459,7 @@ const ParamSchema<IcpOptions>& paramSchema<IcpOptions>() {
   using R = ParamRange;
   static const ParamSchema<O> schema{"icp", {
       {"sampling.max_source_points", &O::max_source_points, R::atLeast(0), "points",
-       "source randomly subsampled to at most this many points; 0 = all"},
+       "source randomly subsampled to at most this many points (with whole_source: the points that move); 0 = all"},
       {"sampling.whole_source", &O::whole_source, R::any(), "",
        "the source's k-d tree, planes, spacing, thickness and reciprocal check use the whole source cloud, as "
        "the target's do; max_source_points then only limits the points that move (more accurate on sparse noisy "
