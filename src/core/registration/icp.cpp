@@ -923,7 +923,8 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   sampling.max_points = o.max_source_points;
   // The points that move: the sample itself, or (whole_source) the sample's columns of the whole
   // source, which then also makes the source's side of the matching.
-  const Cloud source = o.whole_source ? source_in : maxPointsFilter(source_in, sampling);
+  const Cloud sampled = o.whole_source ? Cloud() : maxPointsFilter(source_in, sampling);
+  const Cloud& source = o.whole_source ? source_in : sampled;
   const std::vector<Eigen::Index> sample_indices =
       o.whole_source ? maxPointsIndices(source_in.cols(), sampling) : std::vector<Eigen::Index>();
   const std::vector<Eigen::Index>* sample =
