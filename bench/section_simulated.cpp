@@ -1,7 +1,8 @@
 // make bench, section "simulated": worlds made in-process by simulate() (seeded, reproducible),
 // swept over the maps' scale drift, the overlap of the two agents and the semi-dense depth noise,
-// several seeds per cell, each merged with and without depth images; a third agent that does not
-// overlap checks false merges. Ours and Open3D in the same run, against the simulator's exact truth.
+// several seeds per cell, each merged with depth images, with the keyframes' own semi-dense depth
+// (as LSD-SLAM gives it) and with neither; a third agent that does not overlap checks false
+// merges. Ours and Open3D in the same run, against the simulator's exact truth.
 #include <functional>
 #include <memory>
 
@@ -51,23 +52,34 @@ std::string cellName(double overlap, double drift, double noise) {
   return "overlap " + fmt(100 * overlap, 0) + " %, drift " + fmt(100 * drift, 1) + " %, noise " + fmt(noise, 2);
 }
 
-// Both merges of a world (with and without depth images) and, with a third agent, c -> a.
+// The three merges of a world (keyframe depth from depth images, from the keyframes' own
+// semi-dense depth, from the map cloud) and, with a third agent, c -> a.
 void runWorld(const Simulation& sim, const std::string& tag, const std::string& cell, const CaseRunOptions& options,
               std::vector<CaseResult>& results, std::map<std::string, std::vector<PeerRun>>& peer_cache) {
   const AgentMap& a = sim.agents[0].map;
   const AgentMap& b = sim.agents[1].map;
   const AgentMap a_nodepth = withoutDepth(a), b_nodepth = withoutDepth(b);
-  // One pipeline for both merges: the images are the same, so the second takes its SIFT features
-  // from the cache (its time is then that of a warm merge).
+  const AgentMap a_lsd = test::withLsdKeyframeDepth(sim.agents[0], sim.options.camera);
+  const AgentMap b_lsd = test::withLsdKeyframeDepth(sim.agents[1], sim.options.camera);
+  struct Variant {
+    const char* name;
+    const char* cell;
+    const AgentMap *source, *target;
+  };
+  const Variant variants[] = {{"/depth", ", depth images", &b, &a},
+                              {"/lsd", ", LSD keyframe depth", &b_lsd, &a_lsd},
+                              {"/nodepth", ", no depth images", &b_nodepth, &a_nodepth}};
+  // One pipeline for the three merges: the images are the same, so the later ones take their
+  // SIFT features from the cache (their time is then that of a warm merge).
   MergePipeline pipeline{MergeOptions()};
-  for (int d = 0; d < 2; ++d) {
+  for (const Variant& v : variants) {
     CaseInput in;
-    in.name = tag + (d ? "/nodepth" : "/depth");
+    in.name = tag + v.name;
     in.family = "simulated";
-    in.cell = cell + (d ? ", no depth images" : ", depth images");
+    in.cell = cell + v.cell;
     in.overlap = sim.pair(0, 1).overlap;
-    in.source = d ? &b_nodepth : &b;
-    in.target = d ? &a_nodepth : &a;
+    in.source = v.source;
+    in.target = v.target;
     in.truth = sim.pair(0, 1).target_source;
     in.clouds_key = tag;
     in.pipeline = &pipeline;
@@ -97,18 +109,20 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                    "apart in view angle, 320×240 keyframes, about 5 per agent; a third agent that does not overlap in "
                    "the first seed of each cell). Scale drift of either sign over each path with a map bend of "
                    "40° per unit of drift; semi-dense inverse-depth noise at the reference gradient as given; each "
-                   "world merged with its depth images (dense, exact) and without (keyframe depth from the map "
-                   "cloud; same pipeline, so its SIFT features come from the cache and its time is a warm merge's). "
+                   "world merged three times: with its depth images (dense, exact), with each keyframe's own "
+                   "semi-dense inverse depth and variance as LSD-SLAM publishes it (what the node merges), and with "
+                   "neither (keyframe depth from the map cloud); one pipeline, so the second and third take their SIFT "
+                   "features from the cache and their time is a warm merge's. "
                    "Cells: every overlap × drift at noise 0.01, and noise 0.03 at drift 2.5 %% for every overlap. "
                    "Open3D runs every setting on the first seed of each cell and the best of those on the others. Truth: the simulator's least-squares similarity over the co-visible points (exact; "
                    "with drift it is what a merge of the overlap should find), so no truth uncertainty is added to "
                    "the NEES. Same columns and floors as the real cases; %zu merges in %.0f s.\n\n",
                results.size(), seconds);
-  // One aggregate table per sweep dimension (the cases regrouped), and whether depth images helped.
+  // One aggregate table per sweep dimension (the cases regrouped), and where the keyframe depth came from.
   const std::vector<std::pair<const char*, std::function<std::string(const CaseResult&)>>> groupings = {
       {"overlap", [](const CaseResult& c) { return c.cell.substr(0, c.cell.find(',')); }},
       {"drift", [](const CaseResult& c) { return c.cell.substr(c.cell.find("drift"), c.cell.find(", noise") - c.cell.find("drift")); }},
-      {"noise and depth images", [](const CaseResult& c) { return c.cell.substr(c.cell.find("noise")); }}};
+      {"noise and keyframe depth", [](const CaseResult& c) { return c.cell.substr(c.cell.find("noise")); }}};
   for (const auto& [title, key] : groupings) {
     std::vector<CaseResult> regrouped;
     for (const CaseResult& c : results) {
@@ -137,7 +151,7 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
   std::fprintf(headline,
                "- **Simulated worlds** (%zu cells of overlap 15–60 %%, scale drift 0–5 %%, inverse-depth noise "
                "0.01–0.03; %d seed(s) per cell, "
-               "with and without depth images): **%d / %d = %.1f %%** within the floors (keyframe-only %d, refined "
+               "each merged with depth images, with LSD-SLAM's keyframe depth and with neither): **%d / %d = %.1f %%** within the floors (keyframe-only %d, refined "
                "%d); floor ≥ 99 %%: **%s**; false merges %d / %d. ANEES reported rotation %s, 6-DoF %s, scale %s; "
                "floors: **%s**. Open3D (best setting): %d / %d, false merges %d / %d. Our refinement alone (no "
                "keyframes) started at the exact truth stays within the floors on %d / %d cases (it must stay there: "

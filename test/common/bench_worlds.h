@@ -4,6 +4,7 @@
 
 #include <cstdint>
 
+#include "pcr_pro/io/lsd_keyframe.h"
 #include "pcr_pro/sim/simulator.h"
 
 namespace pcr_pro {
@@ -30,6 +31,27 @@ inline SimulatorOptions benchWorldOptions(double overlap, double drift, double n
   o.drift.bend_deg = 40.0 * drift;
   o.map.semi_dense.idepth_noise = noise;
   return o;
+}
+
+/**
+ * The agent's map with each keyframe's depth as LSD-SLAM hands it to the merge node: the
+ * keyframe's own semi-dense inverse depth with its variance (toKeyframe() of toLsdKeyframe()),
+ * in LSD-SLAM's normalised units, the pose scaled to match (map pose * Sim3(lsd_scale)). Besides
+ * dense depth images and the map cloud projected into the keyframe, the third source of keyframe
+ * depth a merge meets.
+ */
+inline AgentMap withLsdKeyframeDepth(const SimAgent& agent, const PinholeCamera& camera) {
+  AgentMap out = agent.map;
+  for (MapKeyframe& k : out.keyframes) {
+    for (const SimKeyframe& s : agent.keyframes) {
+      if (s.id != k.id) continue;
+      const MapKeyframe lsd = toKeyframe(toLsdKeyframe(s, camera, 0.0));
+      k.depth = lsd.depth;
+      k.depth_stddev = lsd.depth_stddev;
+      k.pose = k.pose * Sim3(s.lsd_scale, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero());
+    }
+  }
+  return out;
 }
 
 }  // namespace test

@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "common/bench_worlds.h"
 #include "pcr_pro/io/bundle.h"
 #include "pcr_pro/io/bundle_writer.h"
 #include "pcr_pro/merge/merge_pipeline.h"
@@ -597,6 +598,49 @@ TEST(SimLsd, NormalisedKeyframesMapToTheSamePoints) {
       }
     }
   }
+}
+
+// The bench's third source of keyframe depth (common/bench_worlds.h): each keyframe's own
+// semi-dense depth as LSD-SLAM publishes it, in LSD-SLAM's normalised units. Mapped by the
+// keyframe's pose it must land where the map pose puts the same pixel's metric semi-dense point
+// (a pose left unscaled would put it lsd_scale times too near), with a standard deviation wherever
+// there is a depth, and nothing where the keyframe has none.
+TEST(SimLsd, BenchKeyframeDepthLandsWhereTheMapPosePutsIt) {
+  SimulatorOptions o = quickOptions(52);
+  o.drift.scale_drift = 0.05;
+  o.drift.loop_closure = 0.5;  // map poses differ from the tracked ones
+  const Simulation sim = simulate(o);
+  const SimAgent& agent = sim.agents[0];
+  const AgentMap map = test::withLsdKeyframeDepth(agent, sim.options.camera);
+  ASSERT_EQ(map.keyframes.size(), agent.keyframes.size());
+  const auto& cam = sim.options.camera;
+  int checked = 0;
+  for (std::size_t k = 0; k < agent.keyframes.size(); ++k) {
+    const SimKeyframe& s = agent.keyframes[k];
+    const MapKeyframe& kf = map.keyframes[k];
+    ASSERT_EQ(kf.id, s.id);
+    ASSERT_EQ(kf.depth.type(), CV_32FC1);
+    ASSERT_EQ(kf.depth_stddev.size(), kf.depth.size());
+    EXPECT_GT(std::abs(s.lsd_scale - 1.0), 1e-3);  // the normalisation is not the identity here
+    for (int r = 3; r < kf.depth.rows; r += 7) {
+      for (int c = 3; c < kf.depth.cols; c += 7) {
+        const float id = s.semi_dense.idepth.at<float>(r, c);
+        const float d = kf.depth.at<float>(r, c);
+        if (!(id > 0.0f)) {
+          EXPECT_EQ(d, 0.0f);
+          continue;
+        }
+        ASSERT_GT(d, 0.0f);
+        EXPECT_GT(kf.depth_stddev.at<float>(r, c), 0.0f);
+        const Eigen::Vector3d ray((c - cam.cx) / cam.fx, (r - cam.cy) / cam.fy, 1.0);
+        const Eigen::Vector3d lsd_point = kf.pose.apply(Eigen::Vector3d(d * ray));
+        const Eigen::Vector3d map_point = s.map_pose.apply(Eigen::Vector3d(ray / id));
+        EXPECT_LT((lsd_point - map_point).norm(), 1e-4 * (1.0 + map_point.norm()));
+        ++checked;
+      }
+    }
+  }
+  EXPECT_GT(checked, 100);
 }
 
 // --- truth ---------------------------------------------------------------------------------------
