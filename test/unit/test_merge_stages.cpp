@@ -538,6 +538,28 @@ TEST(LowOverlapWorld, WhenTheGatesWouldKeepAPooledEstimateThatTheCloudsDoNotSupp
   EXPECT_LT(e.dot(r.report.covariance->ldlt().solve(e)), 12.59);
 }
 
+// The bench world of 15 % overlap, 2.5 % drift and inverse-depth noise 0.03 (seed 0) merged with
+// each keyframe's depth as LSD-SLAM gives it. Its textured walls make the keyframe pairs' views
+// nearly planar; one relative pose, 23.6 deg off its local truth with a 1-sigma of 0.08 deg (its
+// planar twin fits its inliers better), and a second 9 deg off carry the pooled keyframe estimate
+// about 22 deg from the truth, and the refinement does not converge to overrule it (README,
+// "Planar twins"). Whatever the merge reports, an edge it calls OK must not claim more than it
+// knows: the 6-DoF error lies within the chi-square 95 % bound of its covariance (10.3 measured,
+// the covariance 12 deg wide about the axis of the error).
+TEST(LowOverlapWorld, WithLsdKeyframeDepthAnEdgeCarriedByAPlanarTwinStillCoversItsError) {
+  const Simulation sim = simulate(test::benchWorldOptions(0.15, 0.025, 0.03, 0, true));
+  const AgentMap a = test::withLsdKeyframeDepth(sim.agents[0], sim.options.camera);
+  const AgentMap b = test::withLsdKeyframeDepth(sim.agents[1], sim.options.camera);
+  const Sim3& truth = sim.pair(0, 1).target_source;
+  const MergeResult r = mergeMaps(b, a, MergeRequest(), MergeOptions());
+  if (r.report.status != Status::kOk) GTEST_SKIP() << "refused: " << r.report.message;
+  ASSERT_TRUE(r.report.transform && r.report.covariance);
+  const Eigen::Matrix<double, 6, 1> e = similarityDifference(*r.report.transform, truth).head<6>();
+  EXPECT_LT(e.dot(r.report.covariance->ldlt().solve(e)), 12.59)
+      << "rotation error " << rotationDistance(r.report.transform->rotation(), truth.rotation()) * 180.0 / M_PI
+      << " deg";
+}
+
 TEST(MergeGates, AlignedMapsThatDoNotOverlapAreNoOverlap) {
   std::mt19937 rng(8);
   const Cloud target = test::syntheticScene(3000, 2.0, rng);
