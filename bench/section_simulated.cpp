@@ -118,7 +118,7 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                    "with drift it is what a merge of the overlap should find), so no truth uncertainty is added to "
                    "the NEES. Same columns and floors as the real cases; %zu merges in %.0f s.\n\n",
                results.size(), seconds);
-  // One aggregate table per sweep dimension (the cases regrouped), and where the keyframe depth came from.
+  // One aggregate table per sweep dimension (the cases regrouped), and by the keyframe depth's source.
   const std::vector<std::pair<const char*, std::function<std::string(const CaseResult&)>>> groupings = {
       {"overlap", [](const CaseResult& c) { return c.cell.substr(0, c.cell.find(',')); }},
       {"drift", [](const CaseResult& c) { return c.cell.substr(c.cell.find("drift"), c.cell.find(", noise") - c.cell.find("drift")); }},
@@ -150,9 +150,8 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
   const double rate = a.overlapping ? 100.0 * a.success / a.overlapping : 0.0;
   std::fprintf(headline,
                "- **Simulated worlds** (%zu cells of overlap 15–60 %%, scale drift 0–5 %%, inverse-depth noise "
-               "0.01–0.03; %d seed(s) per cell, "
-               "each merged with depth images, with LSD-SLAM's keyframe depth and with neither): **%d / %d = %.1f %%** within the floors (keyframe-only %d, refined "
-               "%d); floor ≥ 99 %%: **%s**; false merges %d / %d. ANEES reported rotation %s, 6-DoF %s, scale %s; "
+               "0.01–0.03; %d seed(s) per cell, each merged with depth images, with LSD-SLAM's keyframe depth and "
+               "with neither): **%d / %d = %.1f %%** within the floors (keyframe-only %d, refined %d); floor ≥ 99 %%: **%s**; false merges %d / %d. ANEES reported rotation %s, 6-DoF %s, scale %s; "
                "floors: **%s**. Open3D (best setting): %d / %d, false merges %d / %d. Our refinement alone (no "
                "keyframes) started at the exact truth stays within the floors on %d / %d cases (it must stay there: "
                "**%s**).\n",

@@ -49,6 +49,7 @@ inline AgentMap withLsdKeyframeDepth(const SimAgent& agent, const PinholeCamera&
       k.depth = lsd.depth;
       k.depth_stddev = lsd.depth_stddev;
       k.pose = k.pose * Sim3(s.lsd_scale, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero());
+      break;
     }
   }
   return out;

@@ -603,8 +603,8 @@ TEST(SimLsd, NormalisedKeyframesMapToTheSamePoints) {
 // The bench's third source of keyframe depth (common/bench_worlds.h): each keyframe's own
 // semi-dense depth as LSD-SLAM publishes it, in LSD-SLAM's normalised units. Mapped by the
 // keyframe's pose it must land where the map pose puts the same pixel's metric semi-dense point
-// (a pose left unscaled would put it lsd_scale times too near), with a standard deviation wherever
-// there is a depth, and nothing where the keyframe has none.
+// (a pose left unscaled would put it at 1 / lsd_scale of its distance), with a standard deviation
+// wherever there is a depth, and nothing where the keyframe has none.
 TEST(SimLsd, BenchKeyframeDepthLandsWhereTheMapPosePutsIt) {
   SimulatorOptions o = quickOptions(52);
   o.drift.scale_drift = 0.05;
