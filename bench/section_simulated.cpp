@@ -42,12 +42,6 @@ SimSweep simSweep(bool quick) {
   return s;
 }
 
-AgentMap withoutDepth(const AgentMap& map) {
-  AgentMap out = map;
-  for (MapKeyframe& k : out.keyframes) k.depth = cv::Mat();
-  return out;
-}
-
 std::string cellName(double overlap, double drift, double noise) {
   return "overlap " + fmt(100 * overlap, 0) + " %, drift " + fmt(100 * drift, 1) + " %, noise " + fmt(noise, 2);
 }
@@ -58,7 +52,7 @@ void runWorld(const Simulation& sim, const std::string& tag, const std::string& 
               std::vector<CaseResult>& results, std::map<std::string, std::vector<PeerRun>>& peer_cache) {
   const AgentMap& a = sim.agents[0].map;
   const AgentMap& b = sim.agents[1].map;
-  const AgentMap a_nodepth = withoutDepth(a), b_nodepth = withoutDepth(b);
+  const AgentMap a_nodepth = test::withoutDepthImages(a), b_nodepth = test::withoutDepthImages(b);
   const AgentMap a_lsd = test::withLsdKeyframeDepth(sim.agents[0], sim.options.camera);
   const AgentMap b_lsd = test::withLsdKeyframeDepth(sim.agents[1], sim.options.camera);
   struct Variant {

@@ -33,6 +33,13 @@ inline SimulatorOptions benchWorldOptions(double overlap, double drift, double n
   return o;
 }
 
+/// The map without its keyframes' depth images: keyframe depth then comes from the map cloud.
+inline AgentMap withoutDepthImages(const AgentMap& map) {
+  AgentMap out = map;
+  for (MapKeyframe& k : out.keyframes) k.depth = cv::Mat();
+  return out;
+}
+
 /**
  * The agent's map with each keyframe's depth as LSD-SLAM hands it to the merge node: the
  * keyframe's own semi-dense inverse depth with its variance (toKeyframe() of toLsdKeyframe()),

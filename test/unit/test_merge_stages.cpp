@@ -437,7 +437,7 @@ bool wrongRelativePose(const Simulation& sim, const CandidatePair& c) {
 // The maps without their depth images (keyframe depth then comes from the map clouds).
 void dropDepthImages(Simulation* sim) {
   for (SimAgent& agent : sim->agents) {
-    for (MapKeyframe& k : agent.map.keyframes) k.depth = cv::Mat();
+    agent.map = test::withoutDepthImages(agent.map);
   }
 }
 
