@@ -243,17 +243,19 @@ double applyKernel(const Cloud& moved, const Cloud& target, const Cloud* normals
   return spread;
 }
 
-// Pseudo-inverse solve of a symmetric positive semi-definite system; unobservable directions
-// (relative eigenvalue below 1e-12) get no update.
+// Pseudo-inverse solve of a symmetric positive semi-definite system: directions whose
+// eigenvalue is not above the largest over `condition_threshold` are unobservable and get no
+// update.
 template <int N>
-Eigen::Matrix<double, N, 1> solvePsd(const Eigen::Matrix<double, N, N>& h, const Eigen::Matrix<double, N, 1>& b) {
+Eigen::Matrix<double, N, 1> solvePsd(const Eigen::Matrix<double, N, N>& h, const Eigen::Matrix<double, N, 1>& b,
+                                     double condition_threshold) {
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> eig(h);
   const auto& ev = eig.eigenvalues();
   const double max_ev = ev.cwiseAbs().maxCoeff();
   Eigen::Matrix<double, N, 1> x = Eigen::Matrix<double, N, 1>::Zero();
   if (!(max_ev > 0.0)) return x;
   for (int k = 0; k < N; ++k) {
-    if (ev(k) > 1e-12 * max_ev) {
+    if (ev(k) * condition_threshold > max_ev) {
       const auto v = eig.eigenvectors().col(k);
       x += v * (v.dot(b) / ev(k));
     }
@@ -307,7 +309,7 @@ struct NoiseShare {
 // nearest point is chosen partly by its own noise, which a plane through k neighbours averages
 // out.
 Sim3 pointToPlaneStep(const PlaneSet& m, const std::vector<PointMatch3>* anchors, const Sim3& current,
-                      bool with_scale, double max_log_scale_step, const NoiseShare& phi) {
+                      bool with_scale, double max_log_scale_step, const NoiseShare& phi, double condition_threshold) {
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
   for (const Eigen::Vector3d& y : m.moving) c += y;
   c /= static_cast<double>(m.size());
@@ -326,12 +328,23 @@ Sim3 pointToPlaneStep(const PlaneSet& m, const std::vector<PointMatch3>* anchors
     g(6) -= (m.reversed[k] ? phi.reverse : phi.forward) * w * r * r;
   }
   if (anchors) addAnchors(*anchors, current, c, &h, &g);
+  // Rotation and log scale in units of the moving points' RMS radius ρ, as the covariance
+  // measures the condition (E = diag(1, 1, 1, 1/ρ, ...): solve E H E u = -E g, step E u), so that
+  // the directions this step leaves alone are the ones the covariance calls unobservable.
+  double rho2 = 0.0;
+  for (const Eigen::Vector3d& y : m.moving) rho2 += (y - c).squaredNorm();
+  const double rho = rho2 > 0.0 ? std::sqrt(rho2 / static_cast<double>(m.size())) : 1.0;
+  Eigen::Matrix<double, 7, 1> e;
+  e << 1.0, 1.0, 1.0, 1.0 / rho, 1.0 / rho, 1.0 / rho, 1.0 / rho;
+  const Eigen::Matrix<double, 7, 7> hu = e.asDiagonal() * h * e.asDiagonal();
+  const Eigen::Matrix<double, 7, 1> gu = e.cwiseProduct(g);
   Eigen::Matrix<double, 7, 1> delta = Eigen::Matrix<double, 7, 1>::Zero();
   if (with_scale) {
-    delta = solvePsd<7>(h, -g);
+    delta = solvePsd<7>(hu, -gu, condition_threshold);
   } else {
-    delta.head<6>() = solvePsd<6>(h.topLeftCorner<6, 6>(), -g.head<6>());
+    delta.head<6>() = solvePsd<6>(hu.topLeftCorner<6, 6>(), -gu.head<6>(), condition_threshold);
   }
+  delta = e.cwiseProduct(delta);
   const double ds = std::max(-max_log_scale_step, std::min(max_log_scale_step, delta(6)));
   const double s = std::exp(ds);
   const Eigen::Matrix3d r = expSO3(delta.segment<3>(3));
@@ -504,6 +517,9 @@ const ParamSchema<IcpOptions>& paramSchema<IcpOptions>() {
        "scale kept >= this times the initial scale"},
       {"error_minimizer.max_scale_ratio", &O::max_scale_ratio, R::atLeast(1), "-",
        "scale kept <= this times the initial scale"},
+      {"error_minimizer.degeneracy_condition_threshold", &O::degeneracy_condition_threshold, R::above(1), "-",
+       "point_to_plane: directions of a step whose information is below the largest over this (rotation and "
+       "scale in units of the cloud radius) are unobservable and keep their initial value"},
       {"error_minimizer.extrapolation", &O::extrapolation, R::any(), "",
        "when successive steps point the same way and shrink, jump ahead by the rest of their geometric series "
        "(Besl & McKay's acceleration)"},
@@ -677,7 +693,8 @@ Sim3 levelStep(const Cloud& moved, const MatchContext& ctx, const LevelEnv& env,
       phi.reverse = (source2 / k) / (source2 / k + target2);
     }
     applyPlaneKernel(o, ctx.spacing, &set);
-    step = pointToPlaneStep(set, env.anchors, current, o.estimate_scale, max_log_step, phi);
+    step = pointToPlaneStep(set, env.anchors, current, o.estimate_scale, max_log_step, phi,
+                            o.degeneracy_condition_threshold);
   }
   return step;
 }
