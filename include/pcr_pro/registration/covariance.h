@@ -72,7 +72,7 @@ struct CovarianceOptions {
   double sensor_noise_stddev = 0.0;
   /// A direction is unobservable (status DEGENERATE) when the condition number of the
   /// geometric information (normals, rotation in units of the cloud radius) exceeds this [-].
-  double degeneracy_condition_threshold = 1.0e3;
+  double degeneracy_condition_threshold = kDefaultDegeneracyCondition;
   /// Neighbours used to estimate normals of the matched target points when the
   /// correspondences carry none (point-to-point ICP) (>= 3).
   int normal_neighbors = 10;

@@ -17,6 +17,11 @@
 
 namespace pcr_pro {
 
+/// Default condition number of the registration's information above which a direction is
+/// unobservable [-]: shared by the ICP's steps (IcpOptions) and the covariance
+/// (CovarianceOptions), so that the two agree on which directions the clouds leave free.
+inline constexpr double kDefaultDegeneracyCondition = 1.0e3;
+
 class KdTree;
 
 /// Error minimised by the ICP step.
@@ -116,7 +121,7 @@ struct IcpOptions {
   /// them follows the numerical noise of the residuals: with a relative eigenvalue of 1e-12 as
   /// the limit, noise-free simulated maps started at the exact truth slid 5-40 deg away on 3 of
   /// 6 drift-free worlds (the worst's overlap one wall); with this, all 6 stay.
-  double degeneracy_condition_threshold = 1.0e3;
+  double degeneracy_condition_threshold = kDefaultDegeneracyCondition;
   /// Extrapolation: when successive steps point the same way and shrink, take the rest of
   /// their geometric series at once (Besl & McKay's acceleration), which saves most of the
   /// slow creeping iterations near convergence.
