@@ -545,13 +545,14 @@ void dropRotationOutliers(std::vector<PairEvidence>* pairs) {
       for (const std::size_t q : used) {
         if (q != p) others.insert(others.end(), (*pairs)[q].matches.begin(), (*pairs)[q].matches.end());
       }
+      if (others.size() < 3) continue;
       Cloud src(3, static_cast<Eigen::Index>(others.size())), dst(3, static_cast<Eigen::Index>(others.size()));
       for (std::size_t k = 0; k < others.size(); ++k) {
         src.col(static_cast<Eigen::Index>(k)) = others[k].source;
         dst.col(static_cast<Eigen::Index>(k)) = others[k].target;
       }
-      const Sim3 start = others.size() >= 3 ? umeyama(src, dst, true) : Sim3();
-      if (others.size() < 3 || !(start.scale() > 0.0) || !start.matrix().allFinite()) continue;
+      const Sim3 start = umeyama(src, dst, true);
+      if (!(start.scale() > 0.0) || !start.matrix().allFinite()) continue;
       const SimilarityFit fit = fitSimilarity(others, {}, start);
       if (!fit.ok) continue;
       const RotationMeasurement& r = (*pairs)[p].rotation;
