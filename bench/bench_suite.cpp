@@ -2,7 +2,7 @@
 // Markdown fragments and CSV files into an output directory; every number comes from this run.
 //
 // Usage: pcr_pro_bench_suite OUTPUT_DIR [--quick] [--ours-only] [--only SECTION[,SECTION...]]
-//   SECTION: real, simulated, timing, consistency, sweep, car
+//   SECTION: real, simulated, heldout, timing, consistency, sweep, car
 //   pcr_pro_bench_suite --memory N merge|idle   (internal: the timing section's memory probe)
 #include <omp.h>
 
@@ -30,6 +30,7 @@ const std::vector<Section>& sections() {
   static const std::vector<Section> list = {
       {"real", sectionRealCases},
       {"simulated", sectionSimulated},
+      {"heldout", sectionHeldOut},
       {"timing", sectionTiming},
       {"consistency", sectionConsistency},
       {"sweep", sectionSweep},

@@ -58,6 +58,8 @@ void sectionConsistency(Output& out, const SuiteConfig& config, std::FILE* headl
 void sectionRealCases(Output& out, const SuiteConfig& config, std::FILE* headline);
 /// Simulated worlds swept over drift, overlap and depth noise, with and without depth images.
 void sectionSimulated(Output& out, const SuiteConfig& config, std::FILE* headline);
+/// The simulated worlds' cells with the next four seeds, ours only (heldout.md, heldout.csv).
+void sectionHeldOut(Output& out, const SuiteConfig& config, std::FILE* headline);
 
 }  // namespace bench
 }  // namespace pcr_pro

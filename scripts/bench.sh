@@ -42,7 +42,7 @@ else
 
   echo "bench: ICP and covariance vs PCL ICP (bench_icp)" >&2
   "$bin/pcr_pro_bench" "${quick_arg[@]}" > "$out/icp.md"
-  echo "bench: suite (real cases, simulated worlds, timing, covariance consistency, sweep, car scans)" >&2
+  echo "bench: suite (real cases, simulated worlds, held-out worlds, timing, covariance consistency, sweep, car scans)" >&2
   "$bin/pcr_pro_bench_suite" "$out" "${quick_arg[@]}"
   echo "bench: plots" >&2
   /usr/bin/python3 "$here/scripts/plots.py" "$out"
@@ -88,6 +88,10 @@ doc="$here/docs/BENCHMARKS.md"
   echo
   cat "$out/simulated.md"
   [ -f "$out/simulated_nees.png" ] && echo "![NEES of the simulated cases](bench/simulated_nees.png)"
+  echo
+  echo "## Held-out simulated worlds: the same cells, other seeds"
+  echo
+  cat "$out/heldout.md" 2>/dev/null || echo "The held-out section wrote nothing (a run older than the section)."
   echo
   echo "## Covariance consistency (Monte-Carlo, re-matched correspondences)"
   echo
