@@ -117,8 +117,7 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
   std::fclose(csv);
   std::FILE* md = out.open(stem + ".md");
   std::fprintf(md, "Worlds made in this run by `simulate()` (seeds 1000+k, k = %d–%d; 2 agents at the cell's overlap, 30° "
-                   "apart in view angle, 320×240 keyframes, about 5 per agent; a third agent that does not overlap in "
-                   "seed k = 0 of each cell). Scale drift of either sign over each path with a map bend of "
+                   "apart in view angle, 320×240 keyframes, about 5 per agent%s). Scale drift of either sign over each path with a map bend of "
                    "40° per unit of drift; semi-dense inverse-depth noise at the reference gradient as given; each "
                    "world merged three times: with its depth images (dense, exact), with each keyframe's own "
                    "semi-dense inverse depth and variance as LSD-SLAM publishes it (what the node merges), and with "
@@ -129,6 +128,7 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                    "with drift it is what a merge of the overlap should find), so no truth uncertainty is added to "
                    "the NEES. Same columns and floors as the real cases; %zu merges in %.0f s.\n\n",
                s.first_seed, s.first_seed + s.seeds - 1,
+               s.first_seed == 0 ? "; a third agent that does not overlap in seed k = 0 of each cell" : "",
                s.peers ? "Open3D runs every setting on the first seed of each cell and the best of those on the others."
                        : "No peer runs on these worlds (ours only).",
                results.size(), seconds);
