@@ -470,6 +470,16 @@ int expectOnlyTheRightPairsUsed(const Simulation& sim, const FrontEndResult& fro
   return wrong;
 }
 
+// chi-square 95 % quantile for 6 degrees of freedom.
+constexpr double kChi2Six95 = 12.59;
+
+// 6-DoF NEES (x y z rx ry rz) of a merge's reported pose under its reported covariance (both
+// present: the caller asserts them).
+double poseNees(const MergeResult& r, const Sim3& truth) {
+  const Eigen::Matrix<double, 6, 1> e = similarityDifference(*r.report.transform, truth).head<6>();
+  return e.dot(r.report.covariance->ldlt().solve(e));
+}
+
 TEST(LowOverlapWorld, ARelativePoseThatDisagreesWithItsOwnDepthMatchesIsNotUsed) {
   const Simulation sim = lowOverlapWorld();
   const AgentMap& a = sim.agents[0].map;
@@ -548,10 +558,9 @@ TEST(LowOverlapWorld, WithDriftAndNoisyDepthAPooledEstimateThatTheWrongPairsCarr
   // Two pairs of noisy depth on a drifting map: within 2 deg (1.3 measured) and, against its own
   // covariance, within the chi-square 95 % bound for 6 DoF.
   const SimPairTruth& truth = sim.pair(0, 1);
+  ASSERT_TRUE(r.report.transform && r.report.covariance);
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.target_source.rotation()), test::rad(2.0));
-  const Eigen::Matrix<double, 6, 1> e = similarityDifference(*r.report.transform, truth.target_source).head<6>();
-  ASSERT_TRUE(r.report.covariance.has_value());
-  EXPECT_LT(e.dot(r.report.covariance->ldlt().solve(e)), 12.59);
+  EXPECT_LT(poseNees(r, truth.target_source), kChi2Six95);
 }
 
 // The bench world of 15 % overlap, 2.5 % drift and inverse-depth noise 0.03 (seed 0) merged with
@@ -582,8 +591,7 @@ TEST(LowOverlapWorld, WithLsdKeyframeDepthPlanarTwinsTheirOwnMatchesCannotExpose
   ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
   ASSERT_TRUE(r.report.transform && r.report.covariance);
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(2.0));
-  const Eigen::Matrix<double, 6, 1> e = similarityDifference(*r.report.transform, truth).head<6>();
-  EXPECT_LT(e.dot(r.report.covariance->ldlt().solve(e)), 12.59);
+  EXPECT_LT(poseNees(r, truth), kChi2Six95);
 }
 
 // The camp arbitration (arbitrate() in merge_pipeline.cpp) where it still decides: the bench
@@ -603,11 +611,10 @@ TEST(LowOverlapWorld, WhenThePairsSplitAndTheRefinementIsNotKeptTheCampTheClouds
   const MergeResult r = mergeMaps(b, a, MergeRequest(), MergeOptions());
   ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
   EXPECT_NE(r.report.message.find("the keyframe pairs split"), std::string::npos) << r.report.message;
+  ASSERT_TRUE(r.report.transform && r.report.covariance);
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.0));
   EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
-  ASSERT_TRUE(r.report.covariance.has_value());
-  const Eigen::Matrix<double, 6, 1> e = similarityDifference(*r.report.transform, truth).head<6>();
-  EXPECT_LT(e.dot(r.report.covariance->ldlt().solve(e)), 12.59);
+  EXPECT_LT(poseNees(r, truth), kChi2Six95);
 }
 
 TEST(MergeGates, AlignedMapsThatDoNotOverlapAreNoOverlap) {
