@@ -342,7 +342,8 @@ Row outlierRun(const BundlePair& bp, const MapKeyframe& kf_s, const MapKeyframe&
     r.err = Errors{180.0, 1e9, 1e9};
     r.ms = nowMs() - t0;
   } else {
-    MapRegistration registration(defaults.registration, defaults.merge.refine_scale);
+    MapRegistration registration(defaults.registration, defaults.merge.refine_scale,
+                                 defaults.merge.reweigh_keyframe_matches);
     registration.setClouds(source.cloud, target.cloud);
     const Refinement refined = registration.refine(guess.estimate, guess.matches);
     RegistrationReport rep;

@@ -48,6 +48,9 @@ struct Refinement {
   int blocks = 0;                ///< spatial blocks of the block spread
   /// How much the spread between blocks enlarged the closed-form covariance (1 = not at all) [-].
   double block_spread_factor = 1.0;
+  /// The anchors' information was multiplied by this in the step that gave the estimate
+  /// (1 = the ICP's own estimate) [-]: MapRegistration::refine().
+  double anchor_weight = 1.0;
   double ms_icp = 0.0, ms_covariance = 0.0;
 };
 
@@ -60,9 +63,12 @@ class MapRegistration {
   /**
    * @param[in] options the geometric stages (filters, icp, covariance)
    * @param[in] estimate_scale the scale policy: refine the scale too, or keep the initial one
+   * @param[in] reweigh_anchors when the ICP's block spread says the clouds' own covariance is
+   *   f > 1 times too small, weigh the anchors f times up (refine();
+   *   MergeGateOptions::reweigh_keyframe_matches)
    * @throw InputError on invalid options
    */
-  MapRegistration(const RegistrationOptions& options, bool estimate_scale);
+  MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors = true);
   ~MapRegistration();
 
   /**
@@ -73,7 +79,10 @@ class MapRegistration {
   std::string setClouds(const Cloud& source, const Cloud& target);
 
   /**
-   * @brief Refines S_target_source from `initial` with the ICP and the anchors.
+   * @brief Refines S_target_source from `initial` with the ICP and the anchors. With
+   * reweigh_anchors (constructor), when the ICP's block_spread_factor f exceeds 1, one
+   * Gauss-Newton step at the ICP's final correspondences with the anchors' information times f
+   * moves the estimate (anchor_weight = f), and the covariance is computed there.
    * @param[in] initial starting estimate (the keyframe estimate)
    * @param[in] anchors 3D-3D keyframe matches (group = keyframe pair); may be empty
    */
@@ -93,8 +102,17 @@ class MapRegistration {
   double filterMs() const { return filter_ms_; }
 
  private:
+  // The refinement's covariance (closed form with the anchors, covered by the block spread),
+  // status and message at refinement->estimate from its ICP correspondences.
+  void finish(const std::vector<PointMatch3>& anchors, Refinement* refinement) const;
+  // The estimate moved by one Gauss-Newton step of the ICP's objective at its final
+  // correspondences with the anchors' information times `weight` (see refine()); `estimate`
+  // itself when that system is singular.
+  Sim3 reweighedStep(const Correspondences& m, const Sim3& estimate, const std::vector<PointMatch3>& anchors,
+                     double weight, ErrorMetric metric) const;
   RegistrationOptions options_;
   bool estimate_scale_;
+  bool reweigh_anchors_;
   Cloud source_, target_;
   std::unique_ptr<KdTree> target_tree_, source_tree_;
   double target_spacing_ = 0.0, source_spacing_ = 0.0;

@@ -45,6 +45,7 @@ struct MergeDiagnostics {
   bool refinement_kept = false;    ///< the reported estimate is the refined one
   double refinement_chi2 = 0.0;    ///< refined vs keyframe estimate, squared Mahalanobis [-]
   double block_spread_factor = 1.0;  ///< enlargement of the covariance by the block spread [-]
+  double anchor_weight = 1.0;        ///< Refinement::anchor_weight [-]
   Sim3 initial;                    ///< the keyframe estimate of S_target_source
   Matrix7d keyframe_covariance = Matrix7d::Zero();  ///< its (predictive) covariance (similarity_fit.h)
   /// The keyframe estimate's covariance as the pooled mean's standard error alone (without the

@@ -22,6 +22,9 @@ double msSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
+// Cauchy width of the anchors' kernel on their squared Mahalanobis distance, as in the ICP's
+// steps (icp.cpp).
+constexpr double kAnchorKernel2 = 2.4 * 2.4;
 // Points sampled by the overlap measure: the fraction is then known to about ±0.7 %.
 constexpr Eigen::Index kOverlapSamples = 5000;
 // Information (pseudo-inverse on the active block) of a covariance.
@@ -68,8 +71,8 @@ OverlapRegion overlapRegion(const std::vector<PointMatch3>& matches) {
   return region;
 }
 
-MapRegistration::MapRegistration(const RegistrationOptions& options, bool estimate_scale)
-    : options_(options), estimate_scale_(estimate_scale) {
+MapRegistration::MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors)
+    : options_(options), estimate_scale_(estimate_scale), reweigh_anchors_(reweigh_anchors) {
   validate(options_);
 }
 
@@ -111,35 +114,116 @@ Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointM
   if (!target_tree_) throw InputError("MapRegistration::refine: setClouds() first");
   IcpOptions icp_options = options_.icp;
   icp_options.estimate_scale = estimate_scale_;
-  auto t = Clock::now();
+  const auto t = Clock::now();
   out.icp = alignIcp(source_, *target_tree_, initial, icp_options, &anchors);
   out.ms_icp = msSince(t);
   out.estimate = out.icp.transform;
   out.status = out.icp.status;
   out.message = out.icp.message;
   if (out.icp.status != Status::kOk) return out;
+  finish(anchors, &out);
+  if (!reweigh_anchors_ || anchors.empty() || out.status != Status::kOk || !(out.block_spread_factor > 1.0)) return out;
+  // The clouds' information is block_spread_factor times too large in the direction they
+  // misjudge most (the maps do not fit one similarity), and the ICP's optimum then follows the
+  // surfaces' distortion, where the keyframe matches, with their full 3D residuals, measure the
+  // similarity of the overlap itself. Weighing the matches up by that factor (the clouds down)
+  // gives the two kinds of evidence the weights they really carry.
+  const double weight = out.block_spread_factor;
+  const Sim3 moved = reweighedStep(out.icp.matches, out.estimate, anchors, weight, icp_options.error_metric);
+  if (moved.matrix() == out.estimate.matrix()) return out;
+  Refinement again = out;
+  again.estimate = moved;
+  finish(anchors, &again);
+  again.ms_covariance += out.ms_covariance;
+  if (again.status != Status::kOk) {
+    out.message += "; the step with the keyframe matches weighed up failed, not taken: " + again.message;
+    return out;
+  }
+  again.anchor_weight = weight;
+  std::ostringstream msg;
+  msg.precision(3);
+  msg << again.message << "; keyframe matches weighed x" << weight
+      << " against the clouds (the ICP's block spread), which moved the estimate "
+      << rotationDistance(moved.rotation(), out.estimate.rotation()) * 180.0 / M_PI << " deg";
+  again.message = msg.str();
+  return again;
+}
 
-  t = Clock::now();
-  out.closed_form = computeIcpCovariance(out.icp.matches, out.icp.transform, icp_options.error_metric, estimate_scale_,
-                                         options_.covariance);
+Sim3 MapRegistration::reweighedStep(const Correspondences& m, const Sim3& estimate,
+                                    const std::vector<PointMatch3>& anchors, double weight, ErrorMetric metric) const {
+  const Eigen::Index n = m.source.cols();
+  const double sigma = m.residual_scale;
+  if (n == 0 || !(sigma > 0.0) || m.target_normals.cols() != n) return estimate;
+  std::vector<Eigen::Vector3d> moved(static_cast<std::size_t>(n));
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (Eigen::Index i = 0; i < n; ++i) {
+    moved[static_cast<std::size_t>(i)] = estimate.apply(Eigen::Vector3d(m.source.col(i)));
+    c += moved[static_cast<std::size_t>(i)];
+  }
+  c /= static_cast<double>(n);
+  Matrix7d h_clouds = Matrix7d::Zero();
+  const double inv_var = 1.0 / (sigma * sigma);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double w = (m.weights.size() == n ? m.weights(i) : 1.0) * inv_var;
+    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(moved[static_cast<std::size_t>(i)] - c);
+    if (metric == ErrorMetric::kPointToPlane) {
+      const Eigen::Matrix<double, 1, 7> row = Eigen::Vector3d(m.target_normals.col(i)).transpose() * j;
+      h_clouds.noalias() += w * row.transpose() * row;
+    } else {
+      h_clouds.noalias() += w * j.transpose() * j;
+    }
+  }
+  Matrix7d h_anchors = Matrix7d::Zero();
+  Eigen::Matrix<double, 7, 1> g_anchors = Eigen::Matrix<double, 7, 1>::Zero();
+  for (const PointMatch3& a : anchors) {
+    const Eigen::Vector3d y = estimate.apply(a.source);
+    const Eigen::Vector3d r = y - a.target;
+    const Eigen::Matrix3d w = a.covariance.inverse();
+    const double m2 = r.dot(w * r);
+    if (!std::isfinite(m2)) continue;
+    const double k = 1.0 / (1.0 + m2 / kAnchorKernel2);
+    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y - c);
+    h_anchors.noalias() += k * j.transpose() * w * j;
+    g_anchors.noalias() += k * j.transpose() * w * r;
+  }
+  // At the converged estimate the clouds' gradient cancelled the anchors'; with the anchors'
+  // information times `weight` the gradient is (weight - 1) times theirs.
+  const int d = estimate_scale_ ? 7 : 6;
+  const Eigen::MatrixXd h = (h_clouds + weight * h_anchors).topLeftCorner(d, d);
+  const Eigen::VectorXd g = (weight - 1.0) * g_anchors.head(d);
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(h);
+  if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-14) return estimate;
+  Eigen::Matrix<double, 7, 1> delta = Eigen::Matrix<double, 7, 1>::Zero();
+  delta.head(d) = ldlt.solve(-g);
+  if (!delta.allFinite()) return estimate;
+  const double s = std::exp(delta(6));
+  const Eigen::Matrix3d r = expSO3(delta.segment<3>(3));
+  return Sim3(s, r, c - s * (r * c) + delta.head<3>()) * estimate;
+}
+
+void MapRegistration::finish(const std::vector<PointMatch3>& anchors, Refinement* refinement) const {
+  Refinement& out = *refinement;
+  const auto t = Clock::now();
+  const ErrorMetric metric = options_.icp.error_metric;
+  out.closed_form = computeIcpCovariance(out.icp.matches, out.estimate, metric, estimate_scale_, options_.covariance);
   if (out.closed_form.status != Status::kOk) {
     out.status = out.closed_form.status;
     out.message = out.closed_form.message;
     out.covariance = logScaleCovariance(out.closed_form, out.estimate.scale());
     out.ms_covariance = msSince(t);
-    return out;
+    return;
   }
   const int d = estimate_scale_ ? 7 : 6;
   const Correspondences& m = out.icp.matches;
   // The model covariance: the (calibrated) closed form of the ICP joined with the anchors'
   // information; then covering the spread between spatial blocks and anchor groups.
-  const BlockSpread spread = blockSpreadCovariance(m, out.estimate, icp_options.error_metric, estimate_scale_, &anchors);
+  const BlockSpread spread = blockSpreadCovariance(m, out.estimate, metric, estimate_scale_, &anchors);
   Matrix7d h_anchor = Matrix7d::Zero();
   for (const PointMatch3& a : anchors) {
     const Eigen::Vector3d y = out.estimate.apply(a.source);
     const Eigen::Vector3d r = y - a.target;
     const Eigen::Matrix3d w = a.covariance.inverse();
-    const double k = 1.0 / (1.0 + r.dot(w * r) / (2.4 * 2.4));
+    const double k = 1.0 / (1.0 + r.dot(w * r) / kAnchorKernel2);
     const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y);
     h_anchor.noalias() += k * j.transpose() * w * j;
   }
@@ -147,12 +231,13 @@ Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointM
   const Matrix7d model = informationOf(informationOf(closed, d) + h_anchor, d);
   out.covariance = model;
   out.blocks = spread.clusters;
+  out.block_spread_factor = 1.0;
   if (spread.ok) out.covariance = coveringCovariance(model, spread.sandwich, &out.block_spread_factor);
   out.ms_covariance = msSince(t);
   if (!out.covariance.allFinite()) {
     out.status = Status::kDegenerate;
     out.message = "refinement: the covariance is not finite";
-    return out;
+    return;
   }
   std::ostringstream msg;
   msg.precision(3);
@@ -160,7 +245,6 @@ Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointM
       << " anchors in " << out.blocks << " block(s) and anchor group(s), block spread x" << out.block_spread_factor
       << ", calibration x" << out.closed_form.inflation;
   out.message = msg.str();
-  return out;
 }
 
 }  // namespace pcr_pro

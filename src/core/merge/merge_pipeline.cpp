@@ -155,6 +155,7 @@ void recordRefinement(const Refinement& refinement, RegistrationReport* rep, Mer
     rep->noise_stddev = refinement.closed_form.noise_stddev;
   }
   diag->block_spread_factor = refinement.block_spread_factor;
+  diag->anchor_weight = refinement.anchor_weight;
   diag->refinement_status = refinement.status;
   diag->refined = refinement.estimate;
   diag->refined_covariance = refinement.covariance;
@@ -346,7 +347,8 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   if (kf.status != Status::kOk) return finish(kf.status, kf.message);
 
   // 3. Refinement on the map clouds.
-  MapRegistration registration(options_.registration, options_.merge.refine_scale);
+  MapRegistration registration(options_.registration, options_.merge.refine_scale,
+                               options_.merge.reweigh_keyframe_matches);
   const std::string cloud_problem = registration.setClouds(source.cloud, target.cloud);
   rep.timings.filters = registration.filterMs();
   if (!cloud_problem.empty()) return finish(Status::kInvalidInput, cloud_problem);
