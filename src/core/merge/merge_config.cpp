@@ -16,8 +16,8 @@ const ParamSchema<MergeGateOptions>& paramSchema<MergeGateOptions>() {
       {"refine_scale", &O::refine_scale, R::any(), "",
        "scale policy: the refinement estimates the scale too (else the keyframe estimate's scale is kept)"},
       {"reweigh_keyframe_matches", &O::reweigh_keyframe_matches, R::any(), "",
-       "refine again with the keyframe matches weighed up by the first refinement's block spread factor (how many "
-       "times the clouds' own covariance is too small)"},
+       "one Gauss-Newton step at the ICP's final correspondences with the keyframe matches weighed up by its block "
+       "spread factor (how many times the clouds' own covariance is too small)"},
       {"max_candidate_pairs", &O::max_candidate_pairs, R::atLeast(0), "pairs",
        "without keyframe ids, only the keyframe pairs with the most descriptor votes are matched in full; 0 = every "
        "pair (cost grows with the product of the keyframe counts)"},
