@@ -205,6 +205,19 @@ IcpResult alignIcp(const Cloud& source, const Cloud& target, const Sim3& initial
 IcpResult alignIcp(const Cloud& source, const KdTree& target_tree, const Sim3& initial, const IcpOptions& options,
                    const std::vector<PointMatch3>* anchors = nullptr);
 
+/// Width of the Cauchy kernel on the anchors' Mahalanobis distance (3 DoF) [-].
+inline constexpr double kAnchorKernelWidth = 2.4;
+
+/**
+ * @brief Adds the anchors' normal equations (each match weighed by its covariance's inverse and
+ * the Cauchy kernel on its Mahalanobis distance) at `current`, linearised about c:
+ * y' = c + e^ds R(w) (y - c) + dt, δ = (dt, w, ds) (the ICP's steps; c = 0 is the convention of
+ * similarity_fit.h). Matches whose distance is not finite are skipped.
+ * @param[out] g may be null (information only)
+ */
+void addAnchorNormalEquations(const std::vector<PointMatch3>& anchors, const Sim3& current, const Eigen::Vector3d& c,
+                              Eigen::Matrix<double, 7, 7>* h, Eigen::Matrix<double, 7, 1>* g);
+
 /// Median distance of (a sample of at most 2000) points of the tree to their nearest other point
 /// [cloud units]; 0 for fewer than two points.
 double medianSpacing(const KdTree& tree);

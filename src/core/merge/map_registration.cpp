@@ -22,9 +22,6 @@ double msSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
-// Cauchy width of the anchors' kernel on their squared Mahalanobis distance, as in the ICP's
-// steps (icp.cpp).
-constexpr double kAnchorKernel2 = 2.4 * 2.4;
 // Points sampled by the overlap measure: the fraction is then known to about ±0.7 %.
 constexpr Eigen::Index kOverlapSamples = 5000;
 // Information (pseudo-inverse on the active block) of a covariance.
@@ -175,17 +172,7 @@ Sim3 MapRegistration::reweighedStep(const Correspondences& m, const Sim3& estima
   }
   Matrix7d h_anchors = Matrix7d::Zero();
   Eigen::Matrix<double, 7, 1> g_anchors = Eigen::Matrix<double, 7, 1>::Zero();
-  for (const PointMatch3& a : anchors) {
-    const Eigen::Vector3d y = estimate.apply(a.source);
-    const Eigen::Vector3d r = y - a.target;
-    const Eigen::Matrix3d w = a.covariance.inverse();
-    const double m2 = r.dot(w * r);
-    if (!std::isfinite(m2)) continue;
-    const double k = 1.0 / (1.0 + m2 / kAnchorKernel2);
-    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y - c);
-    h_anchors.noalias() += k * j.transpose() * w * j;
-    g_anchors.noalias() += k * j.transpose() * w * r;
-  }
+  addAnchorNormalEquations(anchors, estimate, c, &h_anchors, &g_anchors);
   // At the converged estimate the clouds' gradient cancelled the anchors'; with the anchors'
   // information times `weight` the gradient is (weight - 1) times theirs.
   const int d = estimate_scale_ ? 7 : 6;
@@ -219,14 +206,7 @@ void MapRegistration::finish(const std::vector<PointMatch3>& anchors, Refinement
   // information; then covering the spread between spatial blocks and anchor groups.
   const BlockSpread spread = blockSpreadCovariance(m, out.estimate, metric, estimate_scale_, &anchors);
   Matrix7d h_anchor = Matrix7d::Zero();
-  for (const PointMatch3& a : anchors) {
-    const Eigen::Vector3d y = out.estimate.apply(a.source);
-    const Eigen::Vector3d r = y - a.target;
-    const Eigen::Matrix3d w = a.covariance.inverse();
-    const double k = 1.0 / (1.0 + r.dot(w * r) / kAnchorKernel2);
-    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y);
-    h_anchor.noalias() += k * j.transpose() * w * j;
-  }
+  addAnchorNormalEquations(anchors, out.estimate, Eigen::Vector3d::Zero(), &h_anchor, nullptr);
   const Matrix7d closed = logScaleCovariance(out.closed_form, out.estimate.scale());
   const Matrix7d model = informationOf(informationOf(closed, d) + h_anchor, d);
   out.covariance = model;

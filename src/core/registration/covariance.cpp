@@ -302,7 +302,7 @@ BlockSpread blockSpreadCovariance(const Correspondences& m, const Sim3& transfor
       const Eigen::Vector3d y = transform.apply(a.source);
       const Eigen::Vector3d r = y - a.target;
       const Eigen::Matrix3d w = a.covariance.inverse();
-      const double k = 1.0 / (1.0 + r.dot(w * r) / (2.4 * 2.4));  // the ICP's anchor kernel
+      const double k = 1.0 / (1.0 + r.dot(w * r) / (kAnchorKernelWidth * kAnchorKernelWidth));
       const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y);
       h.noalias() += k * j.transpose() * w * j;
       auto it = groups.find(a.group);

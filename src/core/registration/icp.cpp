@@ -263,24 +263,6 @@ Eigen::Matrix<double, N, 1> solvePsd(const Eigen::Matrix<double, N, N>& h, const
   return x;
 }
 
-// Adds the anchors (3D-3D matches with covariances, Cauchy kernel on their Mahalanobis distance)
-// to a normal system linearised about c: y' = c + e^ds R(w) (y - c) + dt.
-void addAnchors(const std::vector<PointMatch3>& anchors, const Sim3& current, const Eigen::Vector3d& c,
-                Eigen::Matrix<double, 7, 7>* h, Eigen::Matrix<double, 7, 1>* g) {
-  constexpr double kAnchorKernel2 = 2.4 * 2.4;  // Cauchy width on the Mahalanobis distance (3 DoF)
-  for (const PointMatch3& a : anchors) {
-    const Eigen::Vector3d y = current.apply(a.source);
-    const Eigen::Vector3d r = y - a.target;
-    const Eigen::Matrix3d w = a.covariance.inverse();
-    const double m2 = r.dot(w * r);
-    if (!std::isfinite(m2)) continue;
-    const double k = 1.0 / (1.0 + m2 / kAnchorKernel2);
-    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y - c);
-    h->noalias() += k * j.transpose() * w * j;
-    g->noalias() += k * j.transpose() * w * r;
-  }
-}
-
 // The share of a residual's variance that is the moving point's own noise, for forward and
 // reverse entries (see pointToPlaneStep()).
 struct NoiseShare {
@@ -327,7 +309,7 @@ Sim3 pointToPlaneStep(const PlaneSet& m, const std::vector<PointMatch3>* anchors
     g.noalias() += w * j * r;
     g(6) -= (m.reversed[k] ? phi.reverse : phi.forward) * w * r * r;
   }
-  if (anchors) addAnchors(*anchors, current, c, &h, &g);
+  if (anchors) addAnchorNormalEquations(*anchors, current, c, &h, &g);
   // Rotation and log scale in units of the moving points' RMS radius ρ, as the covariance
   // measures the condition (E = diag(1, 1, 1, 1/ρ, ...): solve E H E u = -E g, step E u), so that
   // the directions this step leaves alone are the ones the covariance calls unobservable.
@@ -1020,5 +1002,21 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   setFinalStatus(set.size(), converged, iter, o, &result);
   return result;
 }
+
+void addAnchorNormalEquations(const std::vector<PointMatch3>& anchors, const Sim3& current, const Eigen::Vector3d& c,
+                              Eigen::Matrix<double, 7, 7>* h, Eigen::Matrix<double, 7, 1>* g) {
+  for (const PointMatch3& a : anchors) {
+    const Eigen::Vector3d y = current.apply(a.source);
+    const Eigen::Vector3d r = y - a.target;
+    const Eigen::Matrix3d w = a.covariance.inverse();
+    const double m2 = r.dot(w * r);
+    if (!std::isfinite(m2)) continue;
+    const double k = 1.0 / (1.0 + m2 / (kAnchorKernelWidth * kAnchorKernelWidth));
+    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y - c);
+    h->noalias() += k * j.transpose() * w * j;
+    if (g) g->noalias() += k * j.transpose() * w * r;
+  }
+}
+
 
 }  // namespace pcr_pro
