@@ -72,7 +72,7 @@ PeerRun icpFromTruth(const CaseInput& in, const Matrix7d& truth_cov, const Eigen
   PeerRun run;
   run.tried = true;
   const double t0 = nowMs();
-  MapRegistration registration(MergeOptions().registration, true);
+  MapRegistration registration(MergeOptions().registration, true, MergeOptions().merge.reweigh_keyframe_matches);
   if (!registration.setClouds(in.source->cloud, in.target->cloud).empty()) return run;
   const Refinement r = registration.refine(in.truth, {});
   run.ms = nowMs() - t0;

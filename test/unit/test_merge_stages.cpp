@@ -649,7 +649,7 @@ TEST(MergeGates, AlignedMapsThatDoNotOverlapAreNoOverlap) {
   const Cloud target = test::syntheticScene(3000, 2.0, rng);
   Cloud source = test::syntheticScene(3000, 2.0, rng);
   source.row(0).array() += 50.0;  // far away once "aligned" by the identity
-  MapRegistration registration(RegistrationOptions(), true);
+  MapRegistration registration(RegistrationOptions(), true, MergeGateOptions().reweigh_keyframe_matches);
   ASSERT_EQ(registration.setClouds(source, target), "");
   KeyframeEstimate kf;
   kf.status = Status::kOk;
@@ -667,7 +667,7 @@ TEST(MergeGates, AlignedMapsThatDoNotOverlapAreNoOverlap) {
 // gates; and a keyframe estimate from two pairs with a tight covariance, for the gates' tests.
 struct SameScene {
   Cloud target;
-  MapRegistration registration{RegistrationOptions(), true};
+  MapRegistration registration{RegistrationOptions(), true, MergeGateOptions().reweigh_keyframe_matches};
   MergeGates gates{MergeGateOptions()};
   std::string set_clouds;  // registration.setClouds()'s answer: empty when the clouds are usable
   explicit SameScene(unsigned seed) {

@@ -68,7 +68,7 @@ class MapRegistration {
    *   MergeGateOptions::reweigh_keyframe_matches)
    * @throw InputError on invalid options
    */
-  MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors = true);
+  MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors);
   ~MapRegistration();
 
   /**
@@ -103,13 +103,15 @@ class MapRegistration {
 
  private:
   // The refinement's covariance (closed form with the anchors, covered by the block spread),
-  // status and message at refinement->estimate from its ICP correspondences.
-  void finish(const std::vector<PointMatch3>& anchors, Refinement* refinement) const;
-  // The estimate moved by one Gauss-Newton step of the ICP's objective at its final
-  // correspondences with the anchors' information times `weight` (see refine()); `estimate`
+  // status and message at refinement->estimate from its ICP correspondences. @return the block
+  // spread's information of the clouds and the anchors (similarity_fit.h convention; zero when
+  // the status is not kOk or the spread could not be formed)
+  Matrix7d finish(const std::vector<PointMatch3>& anchors, Refinement* refinement) const;
+  // The estimate moved by one Gauss-Newton step with the anchors' information times `weight`
+  // on top of `information` (finish()'s, which holds them once; see refine()); `estimate`
   // itself when that system is singular.
-  Sim3 reweighedStep(const Correspondences& m, const Sim3& estimate, const std::vector<PointMatch3>& anchors,
-                     double weight, ErrorMetric metric) const;
+  Sim3 reweighedStep(const Sim3& estimate, const Matrix7d& information, const std::vector<PointMatch3>& anchors,
+                     double weight) const;
   RegistrationOptions options_;
   bool estimate_scale_;
   bool reweigh_anchors_;

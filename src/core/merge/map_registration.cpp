@@ -118,7 +118,7 @@ Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointM
   out.status = out.icp.status;
   out.message = out.icp.message;
   if (out.icp.status != Status::kOk) return out;
-  finish(anchors, &out);
+  const Matrix7d information = finish(anchors, &out);
   if (!reweigh_anchors_ || anchors.empty() || out.status != Status::kOk || !(out.block_spread_factor > 1.0)) return out;
   // The clouds' information is block_spread_factor times too large in the direction they
   // misjudge most (the maps do not fit one similarity), and the ICP's optimum then follows the
@@ -126,7 +126,7 @@ Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointM
   // similarity of the overlap itself. Weighing the matches up by that factor (the clouds down)
   // gives the two kinds of evidence the weights they really carry.
   const double weight = out.block_spread_factor;
-  const Sim3 moved = reweighedStep(out.icp.matches, out.estimate, anchors, weight, icp_options.error_metric);
+  const Sim3 moved = reweighedStep(out.estimate, information, anchors, weight);
   if (moved.matrix() == out.estimate.matrix()) return out;
   Refinement again = out;
   again.estimate = moved;
@@ -146,49 +146,27 @@ Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointM
   return again;
 }
 
-Sim3 MapRegistration::reweighedStep(const Correspondences& m, const Sim3& estimate,
-                                    const std::vector<PointMatch3>& anchors, double weight, ErrorMetric metric) const {
-  const Eigen::Index n = m.source.cols();
-  const double sigma = m.residual_scale;
-  if (n == 0 || !(sigma > 0.0) || m.target_normals.cols() != n) return estimate;
-  std::vector<Eigen::Vector3d> moved(static_cast<std::size_t>(n));
-  Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  for (Eigen::Index i = 0; i < n; ++i) {
-    moved[static_cast<std::size_t>(i)] = estimate.apply(Eigen::Vector3d(m.source.col(i)));
-    c += moved[static_cast<std::size_t>(i)];
-  }
-  c /= static_cast<double>(n);
-  Matrix7d h_clouds = Matrix7d::Zero();
-  const double inv_var = 1.0 / (sigma * sigma);
-  for (Eigen::Index i = 0; i < n; ++i) {
-    const double w = (m.weights.size() == n ? m.weights(i) : 1.0) * inv_var;
-    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(moved[static_cast<std::size_t>(i)] - c);
-    if (metric == ErrorMetric::kPointToPlane) {
-      const Eigen::Matrix<double, 1, 7> row = Eigen::Vector3d(m.target_normals.col(i)).transpose() * j;
-      h_clouds.noalias() += w * row.transpose() * row;
-    } else {
-      h_clouds.noalias() += w * j.transpose() * j;
-    }
-  }
+Sim3 MapRegistration::reweighedStep(const Sim3& estimate, const Matrix7d& information,
+                                    const std::vector<PointMatch3>& anchors, double weight) const {
   Matrix7d h_anchors = Matrix7d::Zero();
   Eigen::Matrix<double, 7, 1> g_anchors = Eigen::Matrix<double, 7, 1>::Zero();
-  addAnchorNormalEquations(anchors, estimate, c, &h_anchors, &g_anchors);
-  // At the converged estimate the clouds' gradient cancelled the anchors'; with the anchors'
-  // information times `weight` the gradient is (weight - 1) times theirs.
+  addAnchorNormalEquations(anchors, estimate, Eigen::Vector3d::Zero(), &h_anchors, &g_anchors);
+  // `information` holds the clouds and the anchors once; the anchors get weight - 1 more. At the
+  // converged estimate the clouds' gradient cancelled the anchors', so the reweighed gradient is
+  // (weight - 1) times theirs.
   const int d = estimate_scale_ ? 7 : 6;
-  const Eigen::MatrixXd h = (h_clouds + weight * h_anchors).topLeftCorner(d, d);
+  const Eigen::MatrixXd h = (information + (weight - 1.0) * h_anchors).topLeftCorner(d, d);
   const Eigen::VectorXd g = (weight - 1.0) * g_anchors.head(d);
   const Eigen::LDLT<Eigen::MatrixXd> ldlt(h);
+  // Numerically singular (a direction neither the clouds nor the anchors hold): no step.
   if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-14) return estimate;
   Eigen::Matrix<double, 7, 1> delta = Eigen::Matrix<double, 7, 1>::Zero();
   delta.head(d) = ldlt.solve(-g);
   if (!delta.allFinite()) return estimate;
-  const double s = std::exp(delta(6));
-  const Eigen::Matrix3d r = expSO3(delta.segment<3>(3));
-  return Sim3(s, r, c - s * (r * c) + delta.head<3>()) * estimate;
+  return Sim3(std::exp(delta(6)), expSO3(delta.segment<3>(3)), delta.head<3>()) * estimate;
 }
 
-void MapRegistration::finish(const std::vector<PointMatch3>& anchors, Refinement* refinement) const {
+Matrix7d MapRegistration::finish(const std::vector<PointMatch3>& anchors, Refinement* refinement) const {
   Refinement& out = *refinement;
   const auto t = Clock::now();
   const ErrorMetric metric = options_.icp.error_metric;
@@ -198,7 +176,7 @@ void MapRegistration::finish(const std::vector<PointMatch3>& anchors, Refinement
     out.message = out.closed_form.message;
     out.covariance = logScaleCovariance(out.closed_form, out.estimate.scale());
     out.ms_covariance = msSince(t);
-    return;
+    return Matrix7d::Zero();
   }
   const int d = estimate_scale_ ? 7 : 6;
   const Correspondences& m = out.icp.matches;
@@ -217,7 +195,7 @@ void MapRegistration::finish(const std::vector<PointMatch3>& anchors, Refinement
   if (!out.covariance.allFinite()) {
     out.status = Status::kDegenerate;
     out.message = "refinement: the covariance is not finite";
-    return;
+    return Matrix7d::Zero();
   }
   std::ostringstream msg;
   msg.precision(3);
@@ -225,6 +203,7 @@ void MapRegistration::finish(const std::vector<PointMatch3>& anchors, Refinement
       << " anchors in " << out.blocks << " block(s) and anchor group(s), block spread x" << out.block_spread_factor
       << ", calibration x" << out.closed_form.inflation;
   out.message = msg.str();
+  return spread.ok ? spread.information : Matrix7d::Zero();
 }
 
 }  // namespace pcr_pro
