@@ -21,6 +21,8 @@ struct GateVerdict {
   Sim3 estimate;                           ///< the reported S_target_source
   Matrix7d covariance = Matrix7d::Zero();  ///< its covariance (similarity_fit.h convention)
   bool refinement_kept = false;            ///< the estimate is the refined one
+  /// ... combined with the keyframe estimate (MergeGateOptions::combine_with_keyframe_estimate)
+  bool combined = false;
   double refinement_chi2 = 0.0;            ///< squared Mahalanobis distance refined vs keyframe
   double rotation_correction_deg = 0.0;    ///< rotation between refined and keyframe estimates [deg]
   double scale_disagreement = 0.0;         ///< |s_refined / s_keyframe - 1| [-]
@@ -53,7 +55,10 @@ class MergeGates {
    * attached to one keyframe pair, where the local similarity differs from the region's) and
    * d dᵀ, d the move from the keyframe estimate to the refined one (the keyframe evidence
    * measures the anchor pair's surroundings; against their local similarity the move is a
-   * possible error). On maps without drift this is conservative.
+   * possible error). On maps without drift this is conservative. With
+   * combine_with_keyframe_estimate the kept refinement is then combined with the keyframe
+   * estimate: their information-weighted mean, each with KeyframeEstimate::between added to its
+   * own covariance (the reported covariance stays as above: it covers both estimates).
    * Otherwise the keyframe estimate is reported, with why in the message, and a converged
    * refinement not kept decides its covariance or a refusal: one that moved the keyframe estimate
    * beyond max_icp_rotation_correction_deg or max_scale_disagreement went to another optimum and
