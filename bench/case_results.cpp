@@ -22,6 +22,12 @@ void scoreOurs(const MergeResult& r, const CaseInput& in, const Matrix7d& truth_
   }
   if (r.report.status == Status::kOk && r.report.transform) {
     out.reported = score(*r.report.transform, d.covariance, in.truth, truth_cov, centroid, extent);
+    if (r.report.keyframe_edge) {
+      const auto local = in.local_truths.find({r.report.keyframe_edge->target_keyframe, r.report.keyframe_edge->source_keyframe});
+      if (local != in.local_truths.end()) {
+        out.reported_local = score(*r.report.transform, d.covariance, local->second, truth_cov, centroid, extent);
+      }
+    }
   }
 }
 
@@ -162,7 +168,7 @@ int bestOpen3dSetting(const std::vector<CaseResult>& results, const std::string&
 Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::string, int>& best_setting) {
   Aggregate a;
   a.pcl_success.assign(pclMethods().size(), 0);
-  std::vector<Score> rep, kf, ref;
+  std::vector<Score> rep, kf, ref, local;
   std::vector<double> ms, o3d_ms;
   for (const CaseResult& c : results) {
     ms.push_back(c.ms);
@@ -193,12 +199,14 @@ Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::
       a.icp_from_truth_success += c.icp_from_truth.ran && c.icp_from_truth.score.within_floors;
     }
     if (c.reported.has) rep.push_back(c.reported);
+    if (c.reported_local.has) local.push_back(c.reported_local);
     if (c.keyframe.has) kf.push_back(c.keyframe);
     if (c.refined.has) ref.push_back(c.refined);
   }
   a.nees = pool(rep);
   a.nees_keyframe = pool(kf);
   a.nees_refined = pool(ref);
+  a.nees_local = pool(local);
   a.median_ms = median(ms);
   a.median_open3d_ms = o3d_ms.empty() ? 0.0 : median(o3d_ms);
   return a;
@@ -217,6 +225,7 @@ void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results) {
     line(c, "pcr_pro reported", c.status, c.reported, c.ms);
     line(c, "pcr_pro keyframe-only", c.keyframe.has ? "ESTIMATE" : "NONE", c.keyframe, 0.0);
     line(c, "pcr_pro refined", c.refined.has ? "ESTIMATE" : "NONE", c.refined, 0.0);
+    if (c.reported_local.has) line(c, "pcr_pro reported, anchor pair's local truth", c.status, c.reported_local, 0.0);
     for (std::size_t k = 0; k < c.open3d.size(); ++k) {
       if (!c.open3d[k].tried) continue;
       line(c, "Open3D " + open3dSettings()[k].name(), c.open3d[k].ran ? "RAN" : "FAILED", c.open3d[k].score,

@@ -25,6 +25,10 @@ struct CaseInput {
   const AgentMap* target = nullptr;
   Sim3 truth;                ///< S_target_source
   TruthAccuracy accuracy;    ///< the truth's own uncertainty (zero when exact)
+  /// The similarity local to each keyframe pair (target keyframe id, source keyframe id): what
+  /// the merge's covariance stands for at its anchor pair (the edge is attached there, and each
+  /// map drifts); empty when unknown (the simulated worlds know it).
+  std::map<std::pair<long, long>, Sim3> local_truths;
   std::string clouds_key;    ///< equal for cases whose two map clouds are the same (peers run once)
   /// The pipeline to merge with (its feature cache kept from an earlier case with the same
   /// images); null: a fresh one (cold cache).
@@ -48,6 +52,9 @@ struct CaseResult {
   bool refinement_kept = false;
   int used_pairs = 0;
   Score keyframe, refined, reported;   ///< reported.has only with status OK
+  /// The reported estimate and covariance against the local truth of its anchor keyframe pair;
+  /// has only when that is known (CaseInput::local_truths).
+  Score reported_local;
   std::vector<PeerRun> open3d;         ///< one per open3dSettings()
   std::vector<PeerRun> pcl;            ///< one per pclMethods(), from our keyframe estimate
   /// Our refinement alone (the merge's MapRegistration, no keyframe anchors) started at the exact
@@ -83,6 +90,7 @@ struct Aggregate {
   std::vector<int> pcl_success;
   int icp_from_truth_run = 0, icp_from_truth_success = 0;  ///< overlapping cases; within the floors
   NeesPool nees, nees_keyframe, nees_refined;
+  NeesPool nees_local;  ///< of reported_local (cases whose anchor pair's local truth is known)
   double median_ms = 0.0, median_open3d_ms = 0.0;
 };
 Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::string, int>& best_setting);

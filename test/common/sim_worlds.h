@@ -49,7 +49,7 @@ struct PairTolerance {
 
 /**
  * The tolerance of a generated pair, from its truth file. The truth S_target_source is the
- * least-squares similarity over all co-visible points; with drift, the similarity local to each
+ * least-squares similarity over the co-visible points of both maps; with drift, the similarity local to each
  * overlapping keyframe pair (keyframe_pairs: exact for the points both keyframes see) differs
  * from it by the maps' distortion there. A merge estimates from keyframe pairs and refines over
  * the overlap, so a correct estimate lies within the spread of these local truths around the

@@ -9,6 +9,7 @@
 #include <Eigen/Eigenvalues>
 
 #include <cmath>
+#include <cstdio>
 #include <memory>
 #include <random>
 #include <stdexcept>
@@ -343,7 +344,9 @@ TEST(IcpScale, StartedAtTheTruthItStaysOnLowOverlapAndNoisySemiDenseMaps) {
 // spacing, normals and reciprocal check, hence another optimum): 15 % overlap, 4.75 deg / -8.2 %;
 // 60 % overlap at inverse-depth noise 0.03 and 2.5 % drift, 5.2 deg / -23 % and 2.7 deg, neither
 // converged. With the coarse levels moving subsets of the whole sample: 0.29 deg / -0.99 %,
-// 0.43 deg / +0.46 %, 0.76 deg / -0.44 %. Bounds as above.
+// 0.43 deg / +0.46 %, 0.76 deg / -0.44 % against the one-sided truth used before 2026-12-03;
+// against the truth of both maps' co-visible points 0.29 deg / -0.99 % (no drift: the same),
+// 0.47 deg / +0.26 %, 0.68 deg / -0.50 %. Bounds as above.
 TEST(IcpScale, StartedAtTheTruthItStaysOnTheBenchWorldsOfLowOverlapAndHighNoise) {
   struct World {
     int seed;
@@ -369,9 +372,12 @@ TEST(IcpScale, StartedAtTheTruthItStaysOnTheBenchWorldsOfLowOverlapAndHighNoise)
 
 // icp.sampling.whole_source: the source's side of the matching (tree, planes, spacing, thickness,
 // reciprocal check) is the whole source, as the target's is. On the bench world of 15 % overlap at
-// inverse-depth noise 0.03 and 2.5 % drift, pcr_pro_icp's path started at the exact truth ends
-// 1.31 deg / -0.78 % away with the source's side made of the 10k-point sample (of 18k), and
-// 0.68 deg / +0.20 % with the whole source. Bounds as above.
+// inverse-depth noise 0.03 and 2.5 % drift, pcr_pro_icp's path started at the exact truth (of both
+// maps' co-visible points) ends 0.87 deg / -0.88 % away with the source's side made of the
+// 10k-point sample (of 18k), and 0.21 deg / +0.10 % with the whole source (against the one-sided
+// truth used before 2026-12-03: 1.31 deg / -0.78 % and 0.68 deg / +0.20 %). With the whole
+// source it creeps there: 77 iterations, past the default limit of 60 (which then reports
+// ICP_NOT_CONVERGED at 0.22 deg), so the limit is raised here. Bounds as above.
 TEST(IcpScale, WithTheWholeSourceItStaysAtTheTruthOnANoisyLowOverlapBenchWorld) {
   const Simulation sim = simulate(test::benchWorldOptions(0.15, 0.025, 0.03, 0, false));
   const Sim3& truth = sim.pair(0, 1).target_source;
@@ -379,6 +385,7 @@ TEST(IcpScale, WithTheWholeSourceItStaysAtTheTruthOnANoisyLowOverlapBenchWorld) 
   RegistrationOptions ro;
   ro.icp.estimate_scale = true;
   ro.icp.whole_source = true;
+  ro.icp.max_iterations = 100;
   const RegistrationReport r = registerClouds(sim.agents[1].map.cloud, sim.agents[0].map.cloud, truth, ro);
   ASSERT_TRUE(r.transform.has_value()) << r.message;
   EXPECT_EQ(r.status, Status::kOk) << r.message;
@@ -619,10 +626,11 @@ TEST(LowOverlapWorld, WhenThePairsSplitAndTheRefinementIsNotKeptTheCampTheClouds
 
 // The bench world o0.35_d0.050_n0.01_s0 with depth images: each map's scale drifts 5 % and it
 // bends, so the maps do not fit one similarity. The point-to-plane ICP then slides along the
-// distorted surfaces (its estimate 1.07 deg from the truth, the keyframe estimate 0.31 deg) and
-// its block spread says the clouds' own covariance is several times too small. Weighing the
-// keyframe matches up by that factor moves the estimate to 0.94 deg; without the reweighing this
-// test fails (measured).
+// distorted surfaces (its estimate 0.57 deg from the truth of both maps' co-visible points; 1.07
+// deg from the one-sided truth used before 2026-12-03) and its block spread says the clouds' own
+// covariance is several times too small. Weighing the keyframe matches up by that factor moves
+// the estimate to 0.51 deg (0.94 deg from the one-sided truth); without the reweighing this test
+// fails (measured).
 TEST(DriftingWorld, TheKeyframeMatchesAreWeighedUpByTheCloudsBlockSpread) {
   const Simulation sim = simulate(test::benchWorldOptions(0.35, 0.05, 0.01, 0, true));
   const AgentMap& a = sim.agents[0].map;
@@ -640,16 +648,21 @@ TEST(DriftingWorld, TheKeyframeMatchesAreWeighedUpByTheCloudsBlockSpread) {
   const MergeResult u = mergeMaps(b, a, MergeRequest(), unweighed);
   ASSERT_EQ(u.report.status, Status::kOk) << u.report.message;
   EXPECT_EQ(u.diagnostics.anchor_weight, 1.0);
+  std::printf("rotation from the truth: keyframe %.2f deg, refined %.2f deg, without the reweighing %.2f deg\n",
+              rotationDistance(r.diagnostics.initial.rotation(), truth.rotation()) / test::rad(1.0),
+              rotationDistance(r.report.transform->rotation(), truth.rotation()) / test::rad(1.0),
+              rotationDistance(u.report.transform->rotation(), truth.rotation()) / test::rad(1.0));
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()),
             rotationDistance(u.report.transform->rotation(), truth.rotation()));
 }
 
 // The same drifting world with merge.combine_with_keyframe_estimate on: the refinement kept
-// lies 0.94 deg from the truth and the keyframe estimate 0.31 deg, and the keyframe pairs' own
-// similarities spread (between-pair covariance T > 0). Each estimate, given T on top of its own
-// covariance, then counts about as much as the other, and their information-weighted mean is
-// reported (0.54 deg, measured with the bench built with the option on); with the option off (the default)
-// the refined estimate, 0.94 deg, is reported.
+// lies 0.51 deg from the truth and the keyframe estimate 0.57 deg, on different sides of it, and
+// the keyframe pairs' own similarities spread (between-pair covariance T > 0). Each estimate,
+// given T on top of its own covariance, then counts about as much as the other, and their
+// information-weighted mean is reported, 0.10 deg from the truth (measured); with the option off
+// (the default) the refined estimate is reported. (Against the one-sided truth used before
+// 2026-12-03: 0.94 deg refined, 0.54 deg combined.)
 TEST(DriftingWorld, AKeptRefinementCanBeCombinedWithTheKeyframeEstimate) {
   const Simulation sim = simulate(test::benchWorldOptions(0.35, 0.05, 0.01, 0, true));
   const AgentMap& a = sim.agents[0].map;
@@ -666,9 +679,9 @@ TEST(DriftingWorld, AKeptRefinementCanBeCombinedWithTheKeyframeEstimate) {
   const double combined = rotationDistance(r.report.transform->rotation(), truth.rotation());
   const double refined = rotationDistance(r.diagnostics.refined.rotation(), truth.rotation());
   const double keyframe = rotationDistance(r.diagnostics.initial.rotation(), truth.rotation());
-  // Between the two, and closer to the truth than the refinement alone.
+  std::printf("rotation from the truth: keyframe %.2f deg, refined %.2f deg, combined %.2f deg\n", keyframe / test::rad(1.0),
+              refined / test::rad(1.0), combined / test::rad(1.0));
   EXPECT_LT(combined, refined);
-  EXPECT_GT(combined, std::min(keyframe, refined) - test::rad(0.05));
   EXPECT_LT(combined, test::rad(0.75));
   EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
   EXPECT_LT(poseNees(r, truth), kChi2Six95);

@@ -210,14 +210,17 @@ struct SimPairTruth {
   double overlap_fraction = 0.0; ///< fraction of the source's map points the target observes [-]
   bool overlap = false;          ///< overlap_fraction >= SimulatorOptions::min_overlap
   /// Least-squares similarity (Umeyama) from the source map to the target map over the
-  /// co-visible points: each point's source-map position (true camera point mapped by its
-  /// source keyframe's map pose) against its target-map position (the same world point mapped
-  /// through the target keyframe that sees it nearest its image centre). Without drift and pose
-  /// noise it equals `start` (and is exact for the clouds); with drift it is what a merge of the
-  /// overlap should find. Equals `start` when there is no co-visible point.
+  /// co-visible points of both maps: each of the source's points that a target keyframe sees,
+  /// its source-map position (true camera point mapped by its own keyframe's map pose) against
+  /// its target-map position (the same world point mapped through the target keyframe that sees
+  /// it nearest its image centre), and each of the target's points that a source keyframe sees,
+  /// the same way round. Pair (t, s) and pair (s, t) thus fit the same points, and their truths
+  /// are inverses of each other (to the second order of the fit's residual). Without drift and
+  /// pose noise it equals `start` (and is exact for the clouds); with drift it is what a merge
+  /// of the overlap should find. Equals `start` when there is no co-visible point.
   Sim3 target_source;
   double rms = 0.0;   ///< residual of that fit [target units]: how far the maps are from one similarity
-  int points = 0;     ///< co-visible points of the fit
+  int points = 0;     ///< co-visible points of the fit (of both maps)
   Sim3 start;         ///< world_to_map(target) * world_to_map(source)⁻¹ (drift-free frames)
   std::vector<SimKeyframePair> keyframe_pairs;  ///< pairs whose covisible >= min_overlap
 };

@@ -37,7 +37,7 @@ BundleTruth bundleTruth(const Simulation& sim, const SimPairTruth& p) {
 // The keys of a pair beyond those loadBundleTruth() reads.
 std::string pairYaml(const SimPairTruth& p) {
   std::ostringstream y;
-  y << "# S_target_source above: least-squares similarity over the co-visible points (see the README).\n"
+  y << "# S_target_source above: least-squares similarity over both maps' co-visible points (see the README).\n"
     << "overlap_fraction: " << num(p.overlap_fraction) << "  # of the source's map points the target observes\n"
     << "fit_rms: " << num(p.rms) << "  # residual of S_target_source over them [target units]\n"
     << "fit_points: " << p.points << "\n"
