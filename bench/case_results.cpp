@@ -225,7 +225,7 @@ void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results) {
     line(c, "pcr_pro reported", c.status, c.reported, c.ms);
     line(c, "pcr_pro keyframe-only", c.keyframe.has ? "ESTIMATE" : "NONE", c.keyframe, 0.0);
     line(c, "pcr_pro refined", c.refined.has ? "ESTIMATE" : "NONE", c.refined, 0.0);
-    if (c.reported_local.has) line(c, "pcr_pro reported, anchor pair's local truth", c.status, c.reported_local, 0.0);
+    if (c.reported_local.has) line(c, "pcr_pro reported against the anchor pair's local truth", c.status, c.reported_local, 0.0);
     for (std::size_t k = 0; k < c.open3d.size(); ++k) {
       if (!c.open3d[k].tried) continue;
       line(c, "Open3D " + open3dSettings()[k].name(), c.open3d[k].ran ? "RAN" : "FAILED", c.open3d[k].score,

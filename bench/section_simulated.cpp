@@ -138,7 +138,7 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
     const NeesPool& nl = aggregate(results, best).nees_local;
     std::fprintf(md, "The reported covariance stands for the similarity at the edge's anchor keyframe pair (the pose-graph "
                      "edge is attached there, and with drift it differs from the overlap's by the spread between keyframe "
-                     "pairs). Against the simulator's local truth of that pair (rows `pcr_pro reported, anchor pair's local "
+                     "pairs). Against the simulator's local truth of that pair (rows `pcr_pro reported against the anchor pair's local "
                      "truth` of the CSV; n = %d merges whose anchor pair is a co-visible one): ANEES rotation %s, 6-DoF %s, "
                      "scale %s.\n\n",
                  nl.n, neesCell(nl.anees_rot, nl.under_rot).c_str(), neesCell(nl.anees6, nl.under6).c_str(),

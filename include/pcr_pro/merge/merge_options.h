@@ -36,11 +36,14 @@ struct MergeGateOptions {
   /// information-weighted mean of the two, each given the between-pair covariance T on top of
   /// its own (KeyframeEstimate::between: how much the keyframe pairs' similarities differ). It
   /// helps where the clouds are the worse evidence, noisy semi-dense maps that drift, and hurts
-  /// where they are the better one. Measured on the bench (one run, ours only): simulated
-  /// semi-dense worlds 63 of 72 merges within the floors instead of 61, held-out seeds 140 of 144
-  /// instead of 137; but the real cases (depth-camera clouds, whose keyframe pairs scatter by
-  /// 1-3.6 deg) 3 of 27 instead of 7, 15 of the 20 kept refinements farther from the truth, and
-  /// slambook2's sharedworld (exact truth) 0.03 -> 0.13 deg. Hence off by default.
+  /// where they are the better one. Measured on the bench's merges: simulated semi-dense worlds
+  /// 69 of 72 within the floors instead of 67, held-out seeds 144 of 144 instead of 143 (an
+  /// offline replay of the combination on the merges' estimates and covariances; before the
+  /// simulator's truth took both maps' points, the replay and a bench run with the option both
+  /// gave 63 instead of 61 and 140 instead of 137); but the real cases (depth-camera clouds, whose
+  /// keyframe pairs scatter by 1-3.6 deg) 3 of 27 instead of 7, 15 of the 20 kept refinements
+  /// farther from the truth, and slambook2's sharedworld (exact truth) 0.03 -> 0.13 deg. Hence
+  /// off by default.
   bool combine_with_keyframe_estimate = false;
   /// When no keyframe ids are given and there are more keyframe pairs than this, only this many
   /// pairs, those with the most descriptor votes (keyframePairVotes()), get the full matching

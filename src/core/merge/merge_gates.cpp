@@ -101,10 +101,10 @@ std::string refinementDisagreement(const KeyframeEstimate& keyframes, const Refi
 // clouds (weighed by point density) and the keyframe matches (weighed by where the features
 // lie) each miss the overlap's similarity by about what T measures, and the clouds' own
 // covariance, block spread included, holds none of it (on the bench's simulated worlds the
-// refined estimates' 6-DoF ANEES under it was 22 and 16). Measured on the bench: simulated 63 of
-// 72 within the floors instead of 61, held-out 140 of 144 instead of 137 (the weight given to T
-// from 0.25 to 4 times: 62-64 and 138-140), but the real cases 3 of 27 instead of 7: there the
-// keyframe pairs scatter by 1-3.6 deg, mostly their own errors, and the clouds are accurate.
+// refined estimates' 6-DoF ANEES under it was 22 and 16). Measured on the bench's merges:
+// simulated 69 of 72 within the floors instead of 67, held-out 144 of 144 instead of 143 (T
+// weighed 0.25 to 4 times: 69-70 and 143-144), but the real cases 3 of 27 instead of 7: there
+// the keyframe pairs scatter by 1-3.6 deg, mostly their own errors, and the clouds are accurate.
 void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinement, bool combine, GateVerdict* v) {
   v->estimate = refinement.estimate;
   if (combine && keyframes.between.allFinite() && keyframes.between.trace() > 0.0) {
