@@ -706,9 +706,10 @@ TEST(SimTruth, WithDriftTheTruthIsLocal) {
 
 // The truth of a -> b is the inverse of the truth of b -> a, as a merge's estimates must be: both
 // are fitted over the co-visible points of both maps. Fitted over the source's points alone (as
-// before 2026-12-03), on this bench world (15 % overlap, 5 % scale drift) the two were 1.74 deg
-// and 0.55 % apart; fitted over both, Umeyama's fit is symmetric up to the second order of its
-// residual (measured: below 0.005 deg, 0.04 % in scale, 0.03 % of the extent at the centroid).
+// before 2026-12-03), on the bench's world of this cell (15 % overlap, 5 % scale drift, seed 0,
+// there with its third agent) the two were 1.74 deg and 0.55 % apart; fitted over both, Umeyama's
+// fit is symmetric up to the second order of its residual (measured there: below 0.005 deg,
+// 0.04 % in scale, 0.03 % of the extent at the centroid).
 TEST(SimTruth, TheTruthsOfBothDirectionsAreInverses) {
   const Simulation sim = simulate(test::benchWorldOptions(0.15, 0.05, 0.01, 0, false));
   const Sim3& ab = sim.pair(0, 1).target_source;
