@@ -134,8 +134,9 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                s.peers ? "Open3D runs every setting on the first seed of each cell and the best of those on the others."
                        : "No peer runs on these worlds (ours only).",
                results.size(), seconds);
+  const Aggregate a = aggregate(results, best);
   {
-    const NeesPool& nl = aggregate(results, best).nees_local;
+    const NeesPool& nl = a.nees_local;
     std::fprintf(md, "The reported covariance stands for the similarity at the edge's anchor keyframe pair (the pose-graph "
                      "edge is attached there, and with drift it differs from the overlap's by the spread between keyframe "
                      "pairs). Against the simulator's local truth of that pair (rows `pcr_pro reported against the anchor pair's local "
@@ -173,7 +174,6 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
   writeCaseTable(md, results, best);
   std::fprintf(md, "</details>\n\n");
   std::fclose(md);
-  const Aggregate a = aggregate(results, best);
   const NeesPool& n = a.nees;
   const NeesPool& nl = a.nees_local;
   const double rate = a.overlapping ? 100.0 * a.success / a.overlapping : 0.0;

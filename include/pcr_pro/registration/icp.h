@@ -218,6 +218,10 @@ inline constexpr double kAnchorKernelWidth = 2.4;
 void addAnchorNormalEquations(const std::vector<PointMatch3>& anchors, const Sim3& current, const Eigen::Vector3d& c,
                               Eigen::Matrix<double, 7, 7>* h, Eigen::Matrix<double, 7, 1>* g);
 
+/// The same for one match (e.g. to collect the gradient per anchor group).
+void addAnchorNormalEquations(const PointMatch3& anchor, const Sim3& current, const Eigen::Vector3d& c,
+                              Eigen::Matrix<double, 7, 7>* h, Eigen::Matrix<double, 7, 1>* g);
+
 /// Median distance of (a sample of at most 2000) points of the tree to their nearest other point
 /// [cloud units]; 0 for fewer than two points.
 double medianSpacing(const KdTree& tree);

@@ -108,11 +108,11 @@ std::string refinementDisagreement(const KeyframeEstimate& keyframes, const Refi
 void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinement, bool combine, GateVerdict* v) {
   v->estimate = refinement.estimate;
   if (combine && keyframes.between.allFinite() && keyframes.between.trace() > 0.0) {
-    const Matrix7d keyframe_side = keyframes.mean_covariance + keyframes.between;
-    const Eigen::LDLT<Matrix7d> ldlt(keyframe_side + refinement.covariance + keyframes.between);
+    // The keyframe side's covariance is keyframes.covariance (mean_covariance + between).
+    const Eigen::LDLT<Matrix7d> ldlt(keyframes.covariance + refinement.covariance + keyframes.between);
     const Eigen::Matrix<double, 7, 1> move = similarityDifference(refinement.estimate, keyframes.estimate);
     if (ldlt.info() == Eigen::Success) {
-      const Eigen::Matrix<double, 7, 1> step = keyframe_side * ldlt.solve(move);
+      const Eigen::Matrix<double, 7, 1> step = keyframes.covariance * ldlt.solve(move);
       const Sim3 combined = applyDelta(step, keyframes.estimate);
       if (step.allFinite() && combined.matrix().allFinite()) {
         v->estimate = combined;

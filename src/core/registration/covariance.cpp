@@ -299,15 +299,9 @@ BlockSpread blockSpreadCovariance(const Correspondences& m, const Sim3& transfor
   if (anchors) {
     std::map<int, Vector7d> groups;
     for (const PointMatch3& a : *anchors) {
-      const Eigen::Vector3d y = transform.apply(a.source);
-      const Eigen::Vector3d r = y - a.target;
-      const Eigen::Matrix3d w = a.covariance.inverse();
-      const double k = 1.0 / (1.0 + r.dot(w * r) / (kAnchorKernelWidth * kAnchorKernelWidth));
-      const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y);
-      h.noalias() += k * j.transpose() * w * j;
       auto it = groups.find(a.group);
       if (it == groups.end()) it = groups.emplace(a.group, Vector7d::Zero()).first;
-      it->second.noalias() += k * j.transpose() * w * r;
+      addAnchorNormalEquations(a, transform, Eigen::Vector3d::Zero(), &h, &it->second);
     }
     for (const auto& entry : groups) gradients.push_back(entry.second);
   }

@@ -1003,20 +1003,22 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
   return result;
 }
 
-void addAnchorNormalEquations(const std::vector<PointMatch3>& anchors, const Sim3& current, const Eigen::Vector3d& c,
+void addAnchorNormalEquations(const PointMatch3& a, const Sim3& current, const Eigen::Vector3d& c,
                               Eigen::Matrix<double, 7, 7>* h, Eigen::Matrix<double, 7, 1>* g) {
-  for (const PointMatch3& a : anchors) {
-    const Eigen::Vector3d y = current.apply(a.source);
-    const Eigen::Vector3d r = y - a.target;
-    const Eigen::Matrix3d w = a.covariance.inverse();
-    const double m2 = r.dot(w * r);
-    if (!std::isfinite(m2)) continue;
-    const double k = 1.0 / (1.0 + m2 / (kAnchorKernelWidth * kAnchorKernelWidth));
-    const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y - c);
-    h->noalias() += k * j.transpose() * w * j;
-    if (g) g->noalias() += k * j.transpose() * w * r;
-  }
+  const Eigen::Vector3d y = current.apply(a.source);
+  const Eigen::Vector3d r = y - a.target;
+  const Eigen::Matrix3d w = a.covariance.inverse();
+  const double m2 = r.dot(w * r);
+  if (!std::isfinite(m2)) return;
+  const double k = 1.0 / (1.0 + m2 / (kAnchorKernelWidth * kAnchorKernelWidth));
+  const Eigen::Matrix<double, 3, 7> j = similarityJacobian(y - c);
+  h->noalias() += k * j.transpose() * w * j;
+  if (g) g->noalias() += k * j.transpose() * w * r;
 }
 
+void addAnchorNormalEquations(const std::vector<PointMatch3>& anchors, const Sim3& current, const Eigen::Vector3d& c,
+                              Eigen::Matrix<double, 7, 7>* h, Eigen::Matrix<double, 7, 1>* g) {
+  for (const PointMatch3& a : anchors) addAnchorNormalEquations(a, current, c, h, g);
+}
 
 }  // namespace pcr_pro
