@@ -60,6 +60,8 @@ struct CaseResult {
   /// Our refinement alone (the merge's MapRegistration, no keyframe anchors) started at the exact
   /// truth: issue 12 asks that it stay there. ran = it converged; overlapping cases only.
   PeerRun icp_from_truth;
+  /// The same with IcpOptions::local_noise on (an option, off by default).
+  PeerRun icp_from_truth_local;
 };
 
 /// Options of runCase().
@@ -89,6 +91,7 @@ struct Aggregate {
   int open3d_success = 0, open3d_false = 0, open3d_apart_ran = 0;
   std::vector<int> pcl_success;
   int icp_from_truth_run = 0, icp_from_truth_success = 0;  ///< overlapping cases; within the floors
+  int icp_from_truth_local_success = 0;  ///< the same with IcpOptions::local_noise on
   NeesPool nees, nees_keyframe, nees_refined;
   NeesPool nees_local;  ///< of reported_local (cases whose anchor pair's local truth is known)
   double median_ms = 0.0, median_open3d_ms = 0.0;

@@ -316,5 +316,46 @@ TEST(NormalsAt, CentroidsCarryAKthOfOnePointsNoise) {
   EXPECT_LT(centroids2, 2.0 * sigma * sigma / k);
 }
 
+// Each point's own thickness (estimateNormalsAt's thickness2, the ICP's local noise): on a plane
+// whose right half is three times noisier, the medians of the two halves' values compare as the
+// noise variances (9), each half's median matches surfaceThickness2() of a plane of its noise
+// alone, and a point with no plane (fewer than 3 neighbours) has none.
+TEST(NormalsAt, ThicknessFollowsTheLocalNoise) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::normal_distribution<double> n(0.0, 1.0);
+  const auto plane = [&](double left, double right) {
+    Cloud c(3, 6000);
+    for (Eigen::Index i = 0; i < c.cols(); ++i) {
+      const double x = u(rng), y = u(rng);
+      c.col(i) = Eigen::Vector3d(x, y, (x > 0.0 ? right : left) * n(rng));
+    }
+    return c;
+  };
+  const Cloud c = plane(0.003, 0.009);
+  std::vector<Eigen::Index> at;
+  for (Eigen::Index i = 0; i < c.cols(); ++i) {
+    if (std::abs(c(0, i)) > 0.2) at.push_back(i);  // away from the seam
+  }
+  Eigen::VectorXd t2;
+  estimateNormalsAt(KdTree(c), at, 10, nullptr, &t2);
+  ASSERT_EQ(t2.size(), static_cast<Eigen::Index>(at.size()));
+  std::vector<double> left, right;
+  for (std::size_t j = 0; j < at.size(); ++j) (c(0, at[j]) > 0.0 ? right : left).push_back(t2(static_cast<Eigen::Index>(j)));
+  const auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  EXPECT_NEAR(median(right) / median(left), 9.0, 1.5);
+  const double quiet = surfaceThickness2(KdTree(plane(0.003, 0.003)), 10, 2000);
+  EXPECT_NEAR(median(left) / quiet, 1.0, 0.2);
+  Cloud two(3, 2);
+  two << 0, 1, 0, 0, 0, 0;
+  Eigen::VectorXd none;
+  estimateNormalsAt(KdTree(two), {0, 1}, 10, nullptr, &none);
+  EXPECT_EQ(none.size(), 2);
+  EXPECT_EQ(none.cwiseAbs().maxCoeff(), 0.0);
+}
+
 }  // namespace
 }  // namespace pcr_pro

@@ -27,10 +27,12 @@ Cloud estimateNormals(const KdTree& tree, int k);
  * @param[in] k neighbours used (>= 3)
  * @param[out] centroids when given, the centroid of each point's neighbours (the point itself
  *             where the normal is zero), in the same order
+ * @param[out] thickness2 when given, each point's neighbours' variance along its normal (the
+ *             smallest PCA eigenvalue over k; 0 where the normal is zero) [cloud units²]
  * @return one normal per index, in the same order
  */
 Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k,
-                        Cloud* centroids = nullptr);
+                        Cloud* centroids = nullptr, Eigen::VectorXd* thickness2 = nullptr);
 
 /**
  * @brief How thick the cloud's surfaces are: the median, over an even sample of its points, of

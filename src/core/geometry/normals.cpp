@@ -46,11 +46,13 @@ Cloud estimateNormals(const KdTree& tree, int k) {
   return normals;
 }
 
-Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k, Cloud* centroids) {
+Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& indices, int k, Cloud* centroids,
+                        Eigen::VectorXd* thickness2) {
   const Cloud& pts = tree.points();
   const auto n = static_cast<Eigen::Index>(indices.size());
   Cloud normals = Cloud::Zero(3, n);
   if (centroids != nullptr) *centroids = Cloud::Zero(3, n);
+  if (thickness2 != nullptr) *thickness2 = Eigen::VectorXd::Zero(n);
 #pragma omp parallel
   {
     std::vector<Eigen::Index> idx;
@@ -59,7 +61,9 @@ Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& ind
 #pragma omp for schedule(dynamic, 256)
     for (Eigen::Index i = 0; i < n; ++i) {
       const Eigen::Vector3d p = pts.col(indices[static_cast<std::size_t>(i)]);
-      normals.col(i) = normalAt(tree, p, k, &idx, &d2, nullptr, &mean);
+      double t2 = 0.0;
+      normals.col(i) = normalAt(tree, p, k, &idx, &d2, &t2, &mean);
+      if (thickness2 != nullptr) (*thickness2)(i) = t2;
       if (centroids != nullptr) centroids->col(i) = normals.col(i).squaredNorm() > 0.0 ? mean : p;
     }
   }

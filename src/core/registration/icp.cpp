@@ -162,6 +162,9 @@ struct PlaneSet {
   std::vector<Eigen::Vector3d> normal, moving, fixed;
   std::vector<char> reversed;  // the plane is the source's
   std::vector<double> weight, d2;
+  // Local noise (IcpOptions::local_noise): each residual's relative precision u (the median
+  // residual variance over its own) and the moving point's share φ of its variance; empty = off.
+  std::vector<double> precision, phi;
   double spread = 0.0;
   std::size_t size() const { return source.size(); }
   double residual(std::size_t k) const { return normal[k].dot(moving[k] - fixed[k]); }
@@ -202,18 +205,62 @@ void planesThroughCentroids(const Cloud& target_centroids, const Cloud* source_c
   }
 }
 
+// A cloud's local thickness never counts as less than a tenth of its median over the
+// correspondences: ten neighbours measure it to about ±50 %, and a few that happen to lie on one
+// plane would otherwise take the fit over.
+constexpr double kLocalThicknessFloor = 0.1;
+// ... nor below the resolution floor of the covariance's noise (covariance.cpp): the point
+// spacing over 50, squared, so that noise-free clouds weigh their residuals alike.
+constexpr double kThicknessFloorPerSpacing = 50.0;
+
+// Local noise (IcpOptions::local_noise): each residual's variance from the thickness of the two
+// clouds where it lies, t_p of the plane's neighbours and t_q of the point's (the moving side
+// scaled by s²). The plane passes through the centroid of k neighbours, so it carries t_p / k:
+// var = t_p / k + t_q, and the moving side's share φ of it (the scale's noise correction) is its
+// part. Sets each residual's precision relative to the median variance (kernel and step weights).
+void setLocalNoise(const Eigen::VectorXd& target_t2, const Eigen::VectorXd& source_t2, double scale, int k,
+                   double spacing, PlaneSet* p) {
+  const std::size_t n = p->size();
+  if (n == 0) return;
+  std::vector<double> tt(n), ts(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    tt[i] = target_t2(p->target[i]);
+    ts[i] = scale * scale * source_t2(p->source[i]);
+  }
+  const double resolution = std::pow(spacing / kThicknessFloorPerSpacing, 2);
+  const double floor_t = std::max(kLocalThicknessFloor * median(tt), resolution);
+  const double floor_s = std::max(kLocalThicknessFloor * median(ts), resolution);
+  std::vector<double> var(n);
+  p->phi.assign(n, 0.0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double a = std::max(tt[i], floor_t), b = std::max(ts[i], floor_s);
+    const double moving = p->reversed[i] ? b / k : b;
+    var[i] = p->reversed[i] ? a + b / k : a / k + b;
+    p->phi[i] = var[i] > 0.0 ? moving / var[i] : 0.0;
+  }
+  const double typical = median(var);
+  p->precision.assign(n, 1.0);
+  if (!(typical > 0.0)) return;
+  for (std::size_t i = 0; i < n; ++i) p->precision[i] = var[i] > 0.0 ? typical / var[i] : 1.0;
+}
+
 // The kernel's IRLS weights on a plane set (see applyKernel()).
 void applyPlaneKernel(const IcpOptions& o, double spacing, PlaneSet* p) {
   if (p->size() == 0) return;
   std::vector<double> r(p->size());
-  for (std::size_t k = 0; k < p->size(); ++k) r[k] = p->residual(k);
+  const bool local = !p->precision.empty();
+  // With local noise the kernel sees each residual in units of its own spread.
+  for (std::size_t k = 0; k < p->size(); ++k) r[k] = p->residual(k) * (local ? std::sqrt(p->precision[k]) : 1.0);
   const double center = median(r);
   std::vector<double> dev(r.size());
   for (std::size_t k = 0; k < r.size(); ++k) dev[k] = std::abs(r[k] - center);
   p->spread = std::max(1.4826 * median(dev), 0.01 * spacing);
+  if (local) {
+    for (std::size_t k = 0; k < p->size(); ++k) p->weight[k] = p->precision[k];
+  }
   if (o.robust_kernel == RobustKernel::kNone || !(p->spread > 0.0)) return;
   const double c2 = std::pow(o.kernel_width * p->spread, 2);
-  for (std::size_t k = 0; k < p->size(); ++k) p->weight[k] = 1.0 / (1.0 + r[k] * r[k] / c2);
+  for (std::size_t k = 0; k < p->size(); ++k) p->weight[k] = (local ? p->precision[k] : 1.0) / (1.0 + r[k] * r[k] / c2);
 }
 
 // Residual of a correspondence for the kernel: signed point-to-plane distance, or the 3D
@@ -307,7 +354,8 @@ Sim3 pointToPlaneStep(const PlaneSet& m, const std::vector<PointMatch3>* anchors
     const double w = m.weight[k] * inv_var;
     h.noalias() += w * j * j.transpose();
     g.noalias() += w * j * r;
-    g(6) -= (m.reversed[k] ? phi.reverse : phi.forward) * w * r * r;
+    const double share = m.phi.empty() ? (m.reversed[k] ? phi.reverse : phi.forward) : m.phi[k];
+    g(6) -= share * w * r * r;
   }
   if (anchors) addAnchorNormalEquations(*anchors, current, c, &h, &g);
   // Rotation and log scale in units of the moving points' RMS radius ρ, as the covariance
@@ -366,6 +414,7 @@ class LazyNormals {
         k_(k),
         normals_(Cloud::Zero(3, tree.size())),
         centroids_(tree.points()),
+        thickness2_(Eigen::VectorXd::Zero(tree.size())),
         known_(static_cast<std::size_t>(tree.size()), 0) {}
 
   // Makes sure every matched target point has its normal.
@@ -397,15 +446,19 @@ class LazyNormals {
   const Cloud& normals() const { return normals_; }
   // Centroid of each known point's neighbours (the point itself where its normal is zero).
   const Cloud& centroids() const { return centroids_; }
+  // Each known point's neighbours' variance along its normal (0 where unknown) [cloud units²].
+  const Eigen::VectorXd& thickness2() const { return thickness2_; }
 
  private:
   void fill(const std::vector<Eigen::Index>& missing) {
     if (missing.empty()) return;
     Cloud centroids;
-    const Cloud fresh = estimateNormalsAt(tree_, missing, k_, &centroids);
+    Eigen::VectorXd thickness2;
+    const Cloud fresh = estimateNormalsAt(tree_, missing, k_, &centroids, &thickness2);
     for (std::size_t i = 0; i < missing.size(); ++i) {
       normals_.col(missing[i]) = fresh.col(static_cast<Eigen::Index>(i));
       centroids_.col(missing[i]) = centroids.col(static_cast<Eigen::Index>(i));
+      thickness2_(missing[i]) = thickness2(static_cast<Eigen::Index>(i));
     }
   }
 
@@ -413,8 +466,25 @@ class LazyNormals {
   int k_;
   Cloud normals_;
   Cloud centroids_;
+  Eigen::VectorXd thickness2_;
   std::vector<char> known_;
 };
+
+// setLocalNoise() on a plane set whose target planes come from `target` and source planes from
+// `source` (the thickness of the points on the other side of each pair is estimated here).
+void applyLocalNoise(LazyNormals& target, LazyNormals& source, double scale, int k, double spacing, PlaneSet* set) {
+  std::vector<Eigen::Index> target_points, source_points;
+  for (std::size_t i = 0; i < set->size(); ++i) {
+    if (set->reversed[i]) {
+      target_points.push_back(set->target[i]);
+    } else {
+      source_points.push_back(set->source[i]);
+    }
+  }
+  target.ensureIndices(target_points);
+  source.ensureIndices(source_points);
+  setLocalNoise(target.thickness2(), source.thickness2(), scale, k, spacing, set);
+}
 
 }  // namespace
 
@@ -493,6 +563,9 @@ const ParamSchema<IcpOptions>& paramSchema<IcpOptions>() {
       {"error_minimizer.estimate_scale", &O::estimate_scale, R::any(), "",
        "estimate a similarity (scale) too, corrected for the source's noise (point_to_plane); pcr_pro_icp "
        "--estimate-scale sets it"},
+      {"error_minimizer.local_noise", &O::local_noise, R::any(), "",
+       "point_to_plane with symmetric matching: weigh each residual by its own noise, from both clouds' surface "
+       "thickness where it lies, instead of one spread for all"},
       {"error_minimizer.max_scale_step", &O::max_scale_step, R::open(0, 1), "-",
        "largest relative scale change per iteration"},
       {"error_minimizer.min_scale_ratio", &O::min_scale_ratio, R::openClosed(0, 1), "-",
@@ -673,6 +746,9 @@ Sim3 levelStep(const Cloud& moved, const MatchContext& ctx, const LevelEnv& env,
     if (source2 > 0.0) {
       phi.forward = source2 / (source2 + target2 / k);
       phi.reverse = (source2 / k) / (source2 / k + target2);
+    }
+    if (o.local_noise && symmetric) {
+      applyLocalNoise(env.normals, *level.normals, current.scale(), o.normal_neighbors, ctx.spacing, &set);
     }
     applyPlaneKernel(o, ctx.spacing, &set);
     step = pointToPlaneStep(set, env.anchors, current, o.estimate_scale, max_log_step, phi,
@@ -983,6 +1059,9 @@ IcpResult alignIcp(const Cloud& source_in, const KdTree& tree, const Sim3& initi
                           symmetric ? &level.normals->normals() : nullptr, current.rotation());
   double spread = 0.0;
   if (plane) {
+    if (o.local_noise && symmetric) {
+      applyLocalNoise(normals, *level.normals, current.scale(), o.normal_neighbors, ctx.spacing, &set);
+    }
     applyPlaneKernel(o, ctx.spacing, &set);
     spread = set.spread;
   } else {
