@@ -341,7 +341,9 @@ TEST(NormalsAt, ThicknessFollowsTheLocalNoise) {
   estimateNormalsAt(KdTree(c), at, 10, nullptr, &t2);
   ASSERT_EQ(t2.size(), static_cast<Eigen::Index>(at.size()));
   std::vector<double> left, right;
-  for (std::size_t j = 0; j < at.size(); ++j) (c(0, at[j]) > 0.0 ? right : left).push_back(t2(static_cast<Eigen::Index>(j)));
+  for (std::size_t j = 0; j < at.size(); ++j) {
+    (c(0, at[j]) > 0.0 ? right : left).push_back(t2(static_cast<Eigen::Index>(j)));
+  }
   const auto median = [](std::vector<double> v) {
     std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
     return v[v.size() / 2];

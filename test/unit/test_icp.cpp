@@ -308,8 +308,8 @@ TEST(Icp, LocalNoiseWeighsTheQuietPartsOfAMapUp) {
     off_t += ea.translation / draws;
     on_t += eb.translation / draws;
   }
-  std::printf("mean error from the truth: one spread %.3f deg %.4f, local noise %.3f deg %.4f\n", off_rot, off_t, on_rot,
-              on_t);
+  std::printf("mean error from the truth: one spread %.3f deg %.4f, local noise %.3f deg %.4f\n", off_rot, off_t,
+              on_rot, on_t);
   EXPECT_LT(on_rot, 0.7 * off_rot);
   EXPECT_LT(on_t, 0.7 * off_t);
 }

@@ -119,10 +119,11 @@ struct IcpOptions {
   /// image gradients, so its far and weakly textured parts are several times noisier than the
   /// rest and, weighed alike, pull the fit along the directions the geometry holds weakly: on the
   /// bench's held-out simulated semi-dense maps the refinement alone, started at the exact truth,
-  /// stays within 1 deg / 2 % / 1.5 % (and converges) on 129 of 144 cases with it instead of 117. Off by default:
-  /// where the thickness measures sampling rather than noise it weighs the wrong parts down (on
-  /// the libpointmatcher car lidar scans, from identity, 0.21 deg from the ground truth instead of
-  /// 0.12), and the merge's reported estimates did not gain from it (README, Benchmarks).
+  /// converges within 1 deg / 2 % / 1.5 % on 129 of 144 cases with it instead of 117. Off by
+  /// default: where the thickness measures sampling rather than noise it weighs the wrong parts
+  /// down (on the libpointmatcher car lidar scans, from identity, 0.21 deg from the ground truth
+  /// instead of 0.12), and the merge's reported estimates did not gain from it (README,
+  /// Troubleshooting).
   bool local_noise = false;
   /// Largest relative scale change in one iteration, in (0, 1) [-].
   double max_scale_step = 0.1;
