@@ -22,6 +22,11 @@ namespace pcr_pro {
 /// (CovarianceOptions), so that the two agree on which directions the clouds leave free.
 inline constexpr double kDefaultDegeneracyCondition = 1.0e3;
 
+/// The clouds' noise is never taken below their point spacing over this [-]: the floor of the
+/// covariance's noise (a map registered with itself has zero residuals) and of the ICP's local
+/// surface thickness (IcpOptions::local_noise), shared so that the two agree.
+inline constexpr double kNoiseFloorPerSpacing = 50.0;
+
 class KdTree;
 
 /// Error minimised by the ICP step.

@@ -23,8 +23,6 @@
 namespace pcr_pro {
 namespace {
 
-// The noise floor is the point spacing divided by this (see computeIcpCovariance()).
-constexpr double kNoiseFloorPerSpacing = 50.0;
 
 using Matrix73d = Eigen::Matrix<double, 7, 3>;
 using Vector7d = Eigen::Matrix<double, 7, 1>;

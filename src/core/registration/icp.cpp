@@ -209,9 +209,8 @@ void planesThroughCentroids(const Cloud& target_centroids, const Cloud* source_c
 // correspondences: ten neighbours measure it to about ±50 %, and a few that happen to lie on one
 // plane would otherwise take the fit over.
 constexpr double kLocalThicknessFloor = 0.1;
-// ... nor below the resolution floor of the covariance's noise (covariance.cpp): the point
-// spacing over 50, squared, so that noise-free clouds weigh their residuals alike.
-constexpr double kThicknessFloorPerSpacing = 50.0;
+// ... nor below the noise floor of the clouds' resolution (kNoiseFloorPerSpacing), so that
+// noise-free clouds weigh their residuals alike.
 
 // Local noise (IcpOptions::local_noise): each residual's variance from the thickness of the two
 // clouds where it lies, t_p of the plane's neighbours and t_q of the point's (the moving side
@@ -227,7 +226,7 @@ void setLocalNoise(const Eigen::VectorXd& target_t2, const Eigen::VectorXd& sour
     tt[i] = target_t2(p->target[i]);
     ts[i] = scale * scale * source_t2(p->source[i]);
   }
-  const double resolution = std::pow(spacing / kThicknessFloorPerSpacing, 2);
+  const double resolution = std::pow(spacing / kNoiseFloorPerSpacing, 2);
   const double floor_t = std::max(kLocalThicknessFloor * median(tt), resolution);
   const double floor_s = std::max(kLocalThicknessFloor * median(ts), resolution);
   std::vector<double> var(n);
@@ -255,12 +254,12 @@ void applyPlaneKernel(const IcpOptions& o, double spacing, PlaneSet* p) {
   std::vector<double> dev(r.size());
   for (std::size_t k = 0; k < r.size(); ++k) dev[k] = std::abs(r[k] - center);
   p->spread = std::max(1.4826 * median(dev), 0.01 * spacing);
-  if (local) {
-    for (std::size_t k = 0; k < p->size(); ++k) p->weight[k] = p->precision[k];
-  }
-  if (o.robust_kernel == RobustKernel::kNone || !(p->spread > 0.0)) return;
+  const bool kernel = o.robust_kernel != RobustKernel::kNone && p->spread > 0.0;
+  if (!kernel && !local) return;
   const double c2 = std::pow(o.kernel_width * p->spread, 2);
-  for (std::size_t k = 0; k < p->size(); ++k) p->weight[k] = (local ? p->precision[k] : 1.0) / (1.0 + r[k] * r[k] / c2);
+  for (std::size_t k = 0; k < p->size(); ++k) {
+    p->weight[k] = (local ? p->precision[k] : 1.0) / (kernel ? 1.0 + r[k] * r[k] / c2 : 1.0);
+  }
 }
 
 // Residual of a correspondence for the kernel: signed point-to-plane distance, or the 3D
