@@ -24,6 +24,9 @@ struct GateVerdict {
   /// ... combined with the keyframe estimate (MergeGateOptions::combine_with_keyframe_estimate)
   bool combined = false;
   double refinement_chi2 = 0.0;            ///< squared Mahalanobis distance refined vs keyframe
+  /// A kept refinement: how many times its and the keyframe estimate's covariances (without the
+  /// between-pair spread) were too small together for their disagreement, max(1, χ² / 7) [-].
+  double disagreement_scale = 1.0;
   double rotation_correction_deg = 0.0;    ///< rotation between refined and keyframe estimates [deg]
   double scale_disagreement = 0.0;         ///< |s_refined / s_keyframe - 1| [-]
   double overlap = 0.0;                    ///< MapRegistration::overlap() of the reported estimate
@@ -50,15 +53,15 @@ class MergeGates {
    * farther (RMS) than the farthest used keyframe pair's own estimate does (when three or more
    * used pairs have an estimate of their own: the envelope of fewer says nothing), rotates it by
    * at most max_icp_rotation_correction_deg and changes its scale by at most max_scale_disagreement; its
-   * covariance is then scaled by max(1, χ² / 7), the disagreement of two independent estimates,
-   * plus the keyframe pairs' between-pair covariance (KeyframeEstimate::between: the edge is
-   * attached to one keyframe pair, where the local similarity differs from the region's) and
-   * d dᵀ, d the move from the keyframe estimate to the refined one (the keyframe evidence
-   * measures the anchor pair's surroundings; against their local similarity the move is a
-   * possible error). On maps without drift this is conservative. With
+   * covariance R is then raised until its disagreement d with the keyframe estimate is
+   * explained: with K the keyframe estimate's covariance without the between-pair spread and
+   * s = max(1, dᵀ (R + K)⁻¹ d / 7) (GateVerdict::disagreement_scale), R' = s R + (s − 1) K, so
+   * that R' + K = s (R + K); plus the keyframe pairs' between-pair covariance
+   * (KeyframeEstimate::between: the edge is attached to one keyframe pair, where the local
+   * similarity differs from the region's). With
    * combine_with_keyframe_estimate the kept refinement is then combined with the keyframe
    * estimate: their information-weighted mean, each with KeyframeEstimate::between added to its
-   * own covariance (the reported covariance stays as above: it covers both estimates).
+   * own covariance (the reported covariance stays as above).
    * Otherwise the keyframe estimate is reported, with why in the message, and a converged
    * refinement not kept decides its covariance or a refusal: one that moved the keyframe estimate
    * beyond max_icp_rotation_correction_deg or max_scale_disagreement went to another optimum and

@@ -44,6 +44,7 @@ struct MergeDiagnostics {
   double overlap = 0.0;            ///< overlap of the aligned maps [-]
   bool refinement_kept = false;    ///< the reported estimate is the refined one
   double refinement_chi2 = 0.0;    ///< refined vs keyframe estimate, squared Mahalanobis [-]
+  double disagreement_scale = 1.0;  ///< GateVerdict::disagreement_scale [-]
   double block_spread_factor = 1.0;  ///< enlargement of the covariance by the block spread [-]
   double anchor_weight = 1.0;        ///< Refinement::anchor_weight [-]
   Sim3 initial;                    ///< the keyframe estimate of S_target_source

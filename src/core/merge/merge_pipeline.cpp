@@ -166,6 +166,7 @@ void recordVerdict(const GateVerdict& verdict, RegistrationReport* rep, MergeDia
   diag->overlap = verdict.overlap;
   diag->refinement_kept = verdict.refinement_kept;
   diag->refinement_chi2 = verdict.refinement_chi2;
+  diag->disagreement_scale = verdict.disagreement_scale;
   rep->overlap = verdict.overlap;
   rep->refinement_kept = verdict.refinement_kept;
   rep->refinement_chi2 = verdict.refinement_chi2;
