@@ -222,33 +222,39 @@ Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::
 void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results) {
   std::fprintf(f, "case,overlap,method,status,rotation_deg,translation_pct,scale_pct,within_floors,nees_rot,nees6,"
                   "nees_scale,raw_nees_rot,raw_nees6,raw_nees_scale,ms\n");
+  // within_floors counts as the md tables do: only an estimate that was made (a peer that ran, a
+  // refinement from the truth that converged), so that a count of the column matches them.
   const auto line = [f](const CaseResult& c, const std::string& method, const std::string& status, const Score& s,
-                        double ms) {
-    std::fprintf(f, "%s,%d,%s,%s,%.5g,%.5g,%.5g,%d,%.5g,%.5g,%.5g,%.5g,%.5g,%.5g,%.1f\n", c.name.c_str(), c.overlap ? 1 : 0,
-                 method.c_str(), status.c_str(), s.rotation_deg, s.translation_pct, s.scale_pct, s.within_floors ? 1 : 0,
-                 s.nees_rot, s.nees6, s.nees_scale, s.raw_rot, s.raw6, s.raw_scale, ms);
+                        bool made, double ms) {
+    std::fprintf(f, "%s,%d,%s,%s,%.5g,%.5g,%.5g,%d,%.5g,%.5g,%.5g,%.5g,%.5g,%.5g,%.1f\n", c.name.c_str(),
+                 c.overlap ? 1 : 0, method.c_str(), status.c_str(), s.rotation_deg, s.translation_pct, s.scale_pct,
+                 made && s.within_floors ? 1 : 0, s.nees_rot, s.nees6, s.nees_scale, s.raw_rot, s.raw6, s.raw_scale,
+                 ms);
   };
   for (const CaseResult& c : results) {
-    line(c, "pcr_pro reported", c.status, c.reported, c.ms);
-    line(c, "pcr_pro keyframe-only", c.keyframe.has ? "ESTIMATE" : "NONE", c.keyframe, 0.0);
-    line(c, "pcr_pro refined", c.refined.has ? "ESTIMATE" : "NONE", c.refined, 0.0);
-    if (c.reported_local.has) line(c, "pcr_pro reported against the anchor pair's local truth", c.status, c.reported_local, 0.0);
+    line(c, "pcr_pro reported", c.status, c.reported, c.reported.has, c.ms);
+    line(c, "pcr_pro keyframe-only", c.keyframe.has ? "ESTIMATE" : "NONE", c.keyframe, c.keyframe.has, 0.0);
+    line(c, "pcr_pro refined", c.refined.has ? "ESTIMATE" : "NONE", c.refined, c.refined.has, 0.0);
+    if (c.reported_local.has) {
+      line(c, "pcr_pro reported against the anchor pair's local truth", c.status, c.reported_local, true, 0.0);
+    }
     for (std::size_t k = 0; k < c.open3d.size(); ++k) {
       if (!c.open3d[k].tried) continue;
       line(c, "Open3D " + open3dSettings()[k].name(), c.open3d[k].ran ? "RAN" : "FAILED", c.open3d[k].score,
-           c.open3d[k].ms);
+           c.open3d[k].ran, c.open3d[k].ms);
     }
     for (std::size_t k = 0; k < c.pcl.size(); ++k) {
-      line(c, pclMethods()[k] + " from keyframe estimate", c.pcl[k].ran ? "RAN" : "FAILED", c.pcl[k].score, c.pcl[k].ms);
+      line(c, pclMethods()[k] + " from keyframe estimate", c.pcl[k].ran ? "RAN" : "FAILED", c.pcl[k].score,
+           c.pcl[k].ran, c.pcl[k].ms);
     }
     if (c.icp_from_truth.tried) {
       line(c, "pcr_pro refinement alone from the truth", c.icp_from_truth.ran ? "CONVERGED" : "NOT_CONVERGED",
-           c.icp_from_truth.score, c.icp_from_truth.ms);
+           c.icp_from_truth.score, c.icp_from_truth.ran, c.icp_from_truth.ms);
     }
     if (c.icp_from_truth_local.tried) {
       line(c, "pcr_pro refinement alone from the truth with local noise",
            c.icp_from_truth_local.ran ? "CONVERGED" : "NOT_CONVERGED", c.icp_from_truth_local.score,
-           c.icp_from_truth_local.ms);
+           c.icp_from_truth_local.ran, c.icp_from_truth_local.ms);
     }
   }
 }

@@ -81,8 +81,8 @@ def time_vs_points(timing, peers, out):
     fig, ax = plt.subplots(figsize=(8, 4.5))
     n = [int(r["points"]) for r in timing]
     bottom = np.zeros(len(n))
-    for stage in ("features", "relative_pose", "scale", "filters", "icp", "covariance"):
-        v = np.array([float(r[stage]) for r in timing])
+    for stage in ("features", "relative_pose", "scale", "filters", "icp", "covariance", "other"):
+        v = np.array([float(r.get(stage) or 0.0) for r in timing])
         ax.bar(range(len(n)), v, bottom=bottom, label="pcr_pro " + stage)
         bottom += v
     ax.set_xticks(range(len(n)))
