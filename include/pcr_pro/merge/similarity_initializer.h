@@ -65,7 +65,9 @@ struct KeyframeEstimate {
   /// Of the estimate alone: covers both the fit's and the pooled mean's standard error.
   Matrix7d mean_covariance = Matrix7d::Zero();
   /// Between-pair covariance T (DerSimonian-Laird): how much the pairs' own similarities differ
-  /// beyond their noise; zero with one pair.
+  /// beyond their noise; zero with one pair. Its scale row and column are then rescaled to the
+  /// anchor pair's own: the random-effects posterior of its local scale given its own estimate
+  /// (the anchor is chosen close to the pooled estimate, so it deviates less than a random pair).
   Matrix7d between = Matrix7d::Zero();
   SimilarityFit fit;                       ///< of the pooled matches
   std::vector<PairEvidence> pairs;         ///< every verified pair, in the front end's order
@@ -117,5 +119,16 @@ class SimilarityInitializer {
 
   MergeOptions options_;
 };
+
+/**
+ * @brief The edge's scale variance from the between-pair spread, conditioned on its anchor pair.
+ * keyframes->between describes a pair taken at random; the anchor is chosen close to the pooled
+ * estimate. With r the anchor's own log-scale deviation from keyframes->estimate, S its variance
+ * and T = between(6, 6), the anchor's local deviation has the random-effects posterior
+ * N(g r, g S), g = T / (T + S), and between's scale row and column are rescaled so that
+ * between(6, 6) = g² r² + g S; covariance is then mean_covariance + between. Unchanged without
+ * an anchor with an estimate of its own, or with T or S not positive.
+ */
+void conditionScaleOnAnchor(KeyframeEstimate* keyframes);
 
 }  // namespace pcr_pro
