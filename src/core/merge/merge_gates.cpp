@@ -141,8 +141,9 @@ void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinem
   // departure from the local similarity, so d's own covariance is the two estimates' without T
   // (the keyframe side's mean_covariance = covariance - between). When d exceeds it,
   // chi2 = d^T (R + K)^-1 d > 7, the two covariances are s = chi2 / 7 times too small together;
-  // the keyframe estimate's is checked on its own (its NEES against the local truth is
-  // consistent), so the refinement's is raised until the disagreement is explained:
+  // the keyframe estimate's is checked on its own (its 6-DoF ANEES on the bench's simulated
+  // merges is 0.88 and 0.96 held-out, the refinement's own 13 and 13), so the refinement's is
+  // raised until the disagreement is explained:
   // R' + K = s (R + K), R' = s R + (s - 1) K. Adding d d^T instead, the move to the keyframe
   // estimate in full (before 2026-12-03), counts the keyframe estimate's own error once more:
   // the reported 6-DoF ANEES against the anchor pair's local truth was 0.72 on 72 simulated

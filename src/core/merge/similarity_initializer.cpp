@@ -788,7 +788,7 @@ bool jointEstimate(const AgentMap& source, const AgentMap& target, const std::ve
 // it. On the bench's 36 drifting simulated merges (seeds 0-1, depth images and LSD keyframe
 // depth) the used pairs' local scales lay 0.60 % RMS from the reported estimate and T gave
 // 0.59 %, but the anchor's lay 0.36 %, and the reported scale ANEES against the anchor's local
-// truth was 0.58 (72 merges) and 0.74 (144 held-out); offline with the posterior 0.76 and 0.92.
+// truth was 0.58 (72 merges) and 0.74 (144 held-out); with the posterior 0.76 and 0.92.
 // The scale alone: the same posterior for the whole of T made the rotation over-confident
 // (ANEES 1.51, 81 % under the chi-square 95 % bound on the 72), because a pair's relative-pose
 // rotation covariance claims too much (README, known limitations), which g then believes.
