@@ -19,6 +19,13 @@ std::string fmt(double v, int precision = 3) {
   return os.str();
 }
 
+// d^T c^-1 d; infinite when c is singular or the result is not finite.
+double squaredMahalanobis(const Eigen::Matrix<double, 7, 1>& d, const Matrix7d& c) {
+  const Eigen::LDLT<Matrix7d> ldlt(c);
+  const double chi2 = ldlt.info() == Eigen::Success ? d.dot(ldlt.solve(d)) : std::numeric_limits<double>::infinity();
+  return std::isfinite(chi2) ? chi2 : std::numeric_limits<double>::infinity();
+}
+
 // A refinement this many times farther from the keyframe estimate than the agreement gate makes
 // the merge refuse: at twice the gate's Mahalanobis length the two estimates exclude each other
 // at any reasonable confidence, so at least one is wrong and the data cannot say which.
@@ -65,9 +72,7 @@ std::string refinementDisagreement(const KeyframeEstimate& keyframes, const Refi
                                    const MergeGateOptions& options, GateVerdict* v) {
   std::string why;
   const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
-  const Eigen::LDLT<Matrix7d> ldlt(refinement.covariance + keyframes.covariance);
-  v->refinement_chi2 = ldlt.info() == Eigen::Success ? d.dot(ldlt.solve(d)) : std::numeric_limits<double>::infinity();
-  if (!std::isfinite(v->refinement_chi2)) v->refinement_chi2 = std::numeric_limits<double>::infinity();
+  v->refinement_chi2 = squaredMahalanobis(d, refinement.covariance + keyframes.covariance);
   v->rotation_correction_deg =
       rotationDistance(refinement.estimate.rotation(), keyframes.estimate.rotation()) * 180.0 / M_PI;
   v->scale_disagreement = std::abs(refinement.estimate.scale() / keyframes.estimate.scale() - 1.0);
@@ -92,15 +97,6 @@ std::string refinementDisagreement(const KeyframeEstimate& keyframes, const Refi
   return why;
 }
 
-// max(1, chi2 / 7) of a disagreement d under its covariance c: how many times c must grow for d
-// to be a typical draw of it (7 DoF). `fallback` is the chi2 used when c is singular.
-double disagreementScale(const Eigen::Matrix<double, 7, 1>& d, const Matrix7d& c, double fallback) {
-  const Eigen::LDLT<Matrix7d> ldlt(c);
-  double chi2 = ldlt.info() == Eigen::Success ? d.dot(ldlt.solve(d)) : fallback;
-  if (!std::isfinite(chi2) || chi2 < 0.0) chi2 = fallback;
-  return std::max(1.0, chi2 / 7.0);
-}
-
 // The refinement kept: its estimate, with its covariance raised until its disagreement with the
 // keyframe estimate is explained, plus how much the similarity varies over the overlap
 // (measured between the keyframe pairs): the edge stands for the similarity local to its anchor
@@ -117,12 +113,12 @@ double disagreementScale(const Eigen::Matrix<double, 7, 1>& d, const Matrix7d& c
 // the keyframe pairs scatter by 1-3.6 deg, mostly their own errors, and the clouds are accurate.
 void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinement, bool combine, GateVerdict* v) {
   v->estimate = refinement.estimate;
+  const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
   if (combine && keyframes.between.allFinite() && keyframes.between.trace() > 0.0) {
     // The keyframe side's covariance is keyframes.covariance (mean_covariance + between).
     const Eigen::LDLT<Matrix7d> ldlt(keyframes.covariance + refinement.covariance + keyframes.between);
-    const Eigen::Matrix<double, 7, 1> move = similarityDifference(refinement.estimate, keyframes.estimate);
     if (ldlt.info() == Eigen::Success) {
-      const Eigen::Matrix<double, 7, 1> step = keyframes.covariance * ldlt.solve(move);
+      const Eigen::Matrix<double, 7, 1> step = keyframes.covariance * ldlt.solve(d);
       const Sim3 combined = applyDelta(step, keyframes.estimate);
       if (step.allFinite() && combined.matrix().allFinite()) {
         v->estimate = combined;
@@ -151,9 +147,11 @@ void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinem
   // on the same merges, this gave 0.82 and 0.66 against the local truth (94 % under the
   // chi-square 95 % bound in both); scaling R alone by chi2 / 7, or computing chi2 with T inside
   // (as the agreement gate does), left 12-18 % of the simulated merges beyond the bound.
-  const Eigen::Matrix<double, 7, 1> d = similarityDifference(refinement.estimate, keyframes.estimate);
   const Matrix7d keyframe_mean = keyframes.covariance - keyframes.between;
-  v->disagreement_scale = disagreementScale(d, refinement.covariance + keyframe_mean, v->refinement_chi2);
+  double chi2 = squaredMahalanobis(d, refinement.covariance + keyframe_mean);
+  // Singular or indefinite without T: the gate's chi-square (with T), which passed, instead.
+  if (!std::isfinite(chi2) || chi2 < 0.0) chi2 = v->refinement_chi2;
+  v->disagreement_scale = std::max(1.0, chi2 / 7.0);
   const double s = v->disagreement_scale;
   v->covariance = s * refinement.covariance + (s - 1.0) * keyframe_mean + keyframes.between;
 }
