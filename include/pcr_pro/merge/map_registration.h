@@ -82,7 +82,9 @@ class MapRegistration {
    * @brief Refines S_target_source from `initial` with the ICP and the anchors. With
    * reweigh_anchors (constructor), when the ICP's block_spread_factor f exceeds 1, one
    * Gauss-Newton step at the ICP's final correspondences with the anchors' information times f
-   * moves the estimate (anchor_weight = f), and the covariance is computed there.
+   * moves the estimate (anchor_weight = f), and the covariance is computed there. With
+   * covariance.jackknife_blocks > 0 the covariance then covers the spread of the refinement
+   * re-run without each spatial block (jackknife.h; that many more ICP runs).
    * @param[in] initial starting estimate (the keyframe estimate)
    * @param[in] anchors 3D-3D keyframe matches (group = keyframe pair); may be empty
    */
@@ -102,6 +104,8 @@ class MapRegistration {
   double filterMs() const { return filter_ms_; }
 
  private:
+  // refine() before the jackknife.
+  Refinement refineOnce(const Sim3& initial, const std::vector<PointMatch3>& anchors) const;
   // The refinement's covariance (closed form with the anchors, covered by the block spread),
   // status and message at refinement->estimate from its ICP correspondences. @return the block
   // spread's information of the clouds and the anchors (similarity_fit.h convention; zero when

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "pcr_pro/registration/filters.h"
+#include "pcr_pro/registration/jackknife.h"
 
 namespace pcr_pro {
 namespace {
@@ -107,6 +108,21 @@ double MapRegistration::overlap(const Sim3& s, double factor, const OverlapRegio
 }
 
 Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
+  Refinement out = refineOnce(initial, anchors);
+  const int blocks = options_.covariance.jackknife_blocks;
+  if (blocks == 0 || out.status != Status::kOk) return out;
+  const auto t = Clock::now();
+  IcpOptions icp_options = options_.icp;
+  icp_options.estimate_scale = estimate_scale_;
+  const JackknifeSpread spread =
+      jackknifeCovariance(source_, target_, out.estimate, icp_options, blocks, anchors.empty() ? nullptr : &anchors);
+  if (spread.ok) out.covariance = coveringCovariance(out.covariance, spread.covariance);
+  out.message += "; " + spread.message;
+  out.ms_covariance += msSince(t);
+  return out;
+}
+
+Refinement MapRegistration::refineOnce(const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
   Refinement out;
   if (!target_tree_) throw InputError("MapRegistration::refine: setClouds() first");
   IcpOptions icp_options = options_.icp;

@@ -3,6 +3,7 @@
 #include <chrono>
 
 #include "pcr_pro/registration/covariance.h"
+#include "pcr_pro/registration/jackknife.h"
 #include "pcr_pro/registration/filters.h"
 #include "pcr_pro/registration/icp.h"
 #include "pcr_pro/registration/scale_detection.h"
@@ -70,8 +71,15 @@ RegistrationReport registerClouds(const Cloud& source, const Cloud& target, cons
   report.message = icp.message;
   if (icp.status == Status::kOk) {
     t = std::chrono::steady_clock::now();
-    const CovarianceResult cov = computeIcpCovariance(icp.matches, icp.transform, options.icp.error_metric,
-                                                      options.icp.estimate_scale, options.covariance);
+    CovarianceResult cov = computeIcpCovariance(icp.matches, icp.transform, options.icp.error_metric,
+                                                options.icp.estimate_scale, options.covariance);
+    std::string jackknife;
+    if (cov.status == Status::kOk && options.covariance.jackknife_blocks > 0) {
+      const JackknifeSpread spread =
+          jackknifeCovariance(src, tgt, icp.transform, options.icp, options.covariance.jackknife_blocks);
+      if (spread.ok) coverCovarianceResult(spread.covariance, icp.transform, options.icp.estimate_scale, &cov);
+      jackknife = "; " + spread.message;
+    }
     report.timings.covariance = msSince(t);
     if (cov.status == Status::kOk || cov.status == Status::kDegenerate) {
       report.covariance = cov.covariance;
@@ -80,6 +88,7 @@ RegistrationReport registerClouds(const Cloud& source, const Cloud& target, cons
       report.noise_stddev = cov.noise_stddev;
       if (options.icp.estimate_scale) report.scale_stddev = cov.scale_stddev;
     }
+    report.message += jackknife;
     if (cov.status != Status::kOk) {
       report.status = cov.status;
       report.message = cov.message;

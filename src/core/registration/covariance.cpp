@@ -205,6 +205,9 @@ const ParamSchema<CovarianceOptions>& paramSchema<CovarianceOptions>() {
       {"degeneracy_condition_threshold", &O::degeneracy_condition_threshold, R::above(1), "-",
        "condition number above which a direction is unobservable"},
       {"normal_neighbors", &O::normal_neighbors, R::atLeast(3), "", "neighbours for the normals of matched points"},
+      {"jackknife_blocks", &O::jackknife_blocks, R::atLeast(3).orZero(), "",
+       "spatial blocks left out one at a time, the registration re-run without each; the covariance covers their "
+       "spread; 0 = off"},
   }};
   return schema;
 }
@@ -221,7 +224,8 @@ namespace {
 constexpr int kMaxBlocks = 16;
 constexpr Eigen::Index kMinBlockSize = 50;
 
-// Recursive median splits of the points along their widest axis into at most `blocks` blocks.
+}  // namespace
+
 std::vector<std::vector<Eigen::Index>> spatialBlocks(const Cloud& points, int blocks) {
   std::vector<std::vector<Eigen::Index>> out(1);
   out[0].resize(static_cast<std::size_t>(points.cols()));
@@ -249,7 +253,18 @@ std::vector<std::vector<Eigen::Index>> spatialBlocks(const Cloud& points, int bl
   return out;
 }
 
-}  // namespace
+Matrix7d blockDiagonalAt(const Matrix7d& covariance, const Eigen::Vector3d& centre) {
+  // δ = K u with u's translation at the centre (rho 1: u's rotation and scale are δ's).
+  const Matrix7d k = centroidToOrigin(centre, 1.0);
+  const Matrix7d kinv = k.inverse();
+  const Matrix7d u = kinv * covariance * kinv.transpose();
+  Matrix7d blocks = Matrix7d::Zero();
+  blocks.block<3, 3>(0, 0) = u.block<3, 3>(0, 0);
+  blocks.block<3, 3>(3, 3) = u.block<3, 3>(3, 3);
+  blocks(6, 6) = u(6, 6);
+  const Matrix7d out = k * blocks * k.transpose();
+  return 0.5 * (out + out.transpose());
+}
 
 Matrix7d logScaleCovariance(const CovarianceResult& c, double scale) {
   Matrix7d out = Matrix7d::Zero();
@@ -498,12 +513,7 @@ void applyBlockSpread(const Correspondences& matches, const Sim3& transform, Err
                       CovarianceResult* res) {
   const BlockSpread spread = blockSpreadCovariance(matches, transform, metric, with_scale);
   if (spread.ok) {
-    const Matrix7d covered = coveringCovariance(logScaleCovariance(*res, transform.scale()), spread.sandwich,
-                                                &res->inflation);
-    res->covariance = covered.topLeftCorner<6, 6>();
-    res->information = res->covariance.ldlt().solve(Matrix6d::Identity());
-    res->information = 0.5 * (res->information + res->information.transpose()).eval();
-    setCovariance7(covered, transform, with_scale, res);
+    res->inflation = coverCovarianceResult(spread.sandwich, transform, with_scale, res);
     res->calibration_splits_used = spread.clusters;
   }
 }
@@ -522,6 +532,16 @@ std::string okMessage(const CovarianceResult& res, Eigen::Index n, const Covaria
 }
 
 }  // namespace
+
+double coverCovarianceResult(const Matrix7d& spread, const Sim3& transform, bool with_scale, CovarianceResult* res) {
+  double factor = 1.0;
+  const Matrix7d covered = coveringCovariance(logScaleCovariance(*res, transform.scale()), spread, &factor);
+  res->covariance = covered.topLeftCorner<6, 6>();
+  res->information = res->covariance.ldlt().solve(Matrix6d::Identity());
+  res->information = 0.5 * (res->information + res->information.transpose()).eval();
+  setCovariance7(covered, transform, with_scale, res);
+  return factor;
+}
 
 CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
                                       bool with_scale, const CovarianceOptions& o) {
