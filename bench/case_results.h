@@ -62,7 +62,13 @@ struct CaseResult {
   PeerRun icp_from_truth;
   /// The same with IcpOptions::local_noise on (an option, off by default).
   PeerRun icp_from_truth_local;
+  /// The same estimate as icp_from_truth with covariance.jackknife_blocks = kBenchJackknifeBlocks
+  /// (an option, off by default): only its covariance differs.
+  PeerRun icp_from_truth_jackknife;
 };
+
+/// Blocks of the bench's jackknife row (CaseResult::icp_from_truth_jackknife).
+inline constexpr int kBenchJackknifeBlocks = 8;
 
 /// Options of runCase().
 struct CaseRunOptions {
