@@ -149,8 +149,8 @@ std::vector<std::vector<Eigen::Index>> spatialBlocks(const Cloud& points, int bl
 /**
  * @brief The covariance without its cross terms between the translation at `centre`, the
  * rotation and the log scale (similarity_fit.h convention in and out). A spread measured from a
- * few estimates resolves those correlations poorly, and a translation at the data's centre is
- * nearly uncorrelated with the rotation, where one at a far origin is not.
+ * few estimates resolves those correlations poorly; a translation at the data's centre leaves
+ * out the rotation's lever arm, which one at a far origin carries.
  */
 Matrix7d blockDiagonalAt(const Matrix7d& covariance, const Eigen::Vector3d& centre);
 

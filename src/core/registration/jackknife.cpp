@@ -78,7 +78,8 @@ JackknifeSpread jackknifeCovariance(const Cloud& source, const Cloud& target, co
   }
   out.ok = out.covariance.allFinite();
   msg << "jackknife over " << out.blocks << " spatial blocks";
-  if (out.not_converged > 0) msg << " (" << out.not_converged << " at the iteration limit)";
+  if (k < blocks) msg << " (" << blocks << " asked; a block keeps at least 50 points)";
+  if (out.not_converged > 0) msg << ", " << out.not_converged << " of them not converged";
   if (out.failed > 0) msg << ", " << out.failed << " without an estimate";
   out.message = out.ok ? msg.str() : "jackknife: the spread is not finite";
   return out;
