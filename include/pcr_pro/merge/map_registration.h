@@ -104,6 +104,8 @@ class MapRegistration {
   double filterMs() const { return filter_ms_; }
 
  private:
+  // The ICP options with the scale policy.
+  IcpOptions icpOptions() const;
   // refine() before the jackknife.
   Refinement refineOnce(const Sim3& initial, const std::vector<PointMatch3>& anchors) const;
   // The refinement's covariance (closed form with the anchors, covered by the block spread),

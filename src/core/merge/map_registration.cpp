@@ -112,23 +112,25 @@ Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointM
   const int blocks = options_.covariance.jackknife_blocks;
   if (blocks == 0 || out.status != Status::kOk) return out;
   const auto t = Clock::now();
-  IcpOptions icp_options = options_.icp;
-  icp_options.estimate_scale = estimate_scale_;
   const JackknifeSpread spread =
-      jackknifeCovariance(source_, target_, out.estimate, icp_options, blocks, anchors.empty() ? nullptr : &anchors);
+      jackknifeCovariance(source_, target_, out.estimate, icpOptions(), blocks, anchors.empty() ? nullptr : &anchors);
   if (spread.ok) out.covariance = coveringCovariance(out.covariance, spread.covariance);
   out.message += "; " + spread.message;
   out.ms_covariance += msSince(t);
   return out;
 }
 
+IcpOptions MapRegistration::icpOptions() const {
+  IcpOptions icp_options = options_.icp;
+  icp_options.estimate_scale = estimate_scale_;
+  return icp_options;
+}
+
 Refinement MapRegistration::refineOnce(const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
   Refinement out;
   if (!target_tree_) throw InputError("MapRegistration::refine: setClouds() first");
-  IcpOptions icp_options = options_.icp;
-  icp_options.estimate_scale = estimate_scale_;
   const auto t = Clock::now();
-  out.icp = alignIcp(source_, *target_tree_, initial, icp_options, &anchors);
+  out.icp = alignIcp(source_, *target_tree_, initial, icpOptions(), &anchors);
   out.ms_icp = msSince(t);
   out.estimate = out.icp.transform;
   out.status = out.icp.status;

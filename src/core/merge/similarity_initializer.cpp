@@ -776,6 +776,12 @@ bool jointEstimate(const AgentMap& source, const AgentMap& target, const std::ve
   return true;
 }
 
+// The edge's predictive covariance: the pooled estimate's own plus the between-pair spread.
+void setPredictiveCovariance(KeyframeEstimate* out) {
+  out->covariance = out->mean_covariance + out->between;
+  out->covariance = 0.5 * (out->covariance + out->covariance.transpose()).eval();
+}
+
 }  // namespace
 
 // Each map's scale drifts, so the pairs' local scales spread about the pooled one by what the
@@ -804,8 +810,7 @@ void conditionScaleOnAnchor(KeyframeEstimate* out) {
   const double f = std::sqrt(posterior / t);
   out->between.row(6) *= f;
   out->between.col(6) *= f;
-  out->covariance = out->mean_covariance + out->between;
-  out->covariance = 0.5 * (out->covariance + out->covariance.transpose()).eval();
+  setPredictiveCovariance(out);
 }
 
 SimilarityInitializer::SimilarityInitializer(const MergeOptions& options) : options_(options) { validate(options_); }
@@ -919,10 +924,9 @@ void SimilarityInitializer::pool(const Sim3* hypothesis, KeyframeEstimate* out_p
   // is. Against that local truth the pooled estimate errs by its own error and by how much the
   // local similarity differs from the pooled one, which the between-pair spread measures (map
   // distortion, each map's scale drift): the predictive covariance.
-  out.covariance = out.mean_covariance + out.between;
-  out.covariance = 0.5 * (out.covariance + out.covariance.transpose()).eval();
   selectPooledMatches(&out);
   conditionScaleOnAnchor(&out);
+  setPredictiveCovariance(&out);
   return finish(Status::kOk, std::to_string(out.used_pairs) + " keyframe pair(s) pooled, " +
                                  std::to_string(out.matches.size()) + " matches");
 }

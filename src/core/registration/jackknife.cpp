@@ -1,7 +1,7 @@
 #include "pcr_pro/registration/jackknife.h"
 
-#include <cmath>
 #include <sstream>
+#include <string>
 
 #include "pcr_pro/geometry/kdtree.h"
 #include "pcr_pro/registration/covariance.h"
