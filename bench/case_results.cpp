@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "bench_common.h"
+#include "pcr_pro/io/text_escape.h"
 #include "pcr_pro/merge/map_registration.h"
 #include "pcr_pro/merge/merge_options.h"
 #include "suite.h"
@@ -233,8 +234,8 @@ void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results) {
   // refinement from the truth that converged), so that a count of the column matches them.
   const auto line = [f](const CaseResult& c, const std::string& method, const std::string& status, const Score& s,
                         bool made, double ms) {
-    std::fprintf(f, "%s,%d,%s,%s,%.5g,%.5g,%.5g,%d,%.5g,%.5g,%.5g,%.5g,%.5g,%.5g,%.1f\n", c.name.c_str(),
-                 c.overlap ? 1 : 0, method.c_str(), status.c_str(), s.rotation_deg, s.translation_pct, s.scale_pct,
+    std::fprintf(f, "%s,%d,%s,%s,%.5g,%.5g,%.5g,%d,%.5g,%.5g,%.5g,%.5g,%.5g,%.5g,%.1f\n", csvField(c.name).c_str(),
+                 c.overlap ? 1 : 0, csvField(method).c_str(), csvField(status).c_str(), s.rotation_deg, s.translation_pct, s.scale_pct,
                  made && s.within_floors ? 1 : 0, s.nees_rot, s.nees6, s.nees_scale, s.raw_rot, s.raw6, s.raw_scale,
                  ms);
   };

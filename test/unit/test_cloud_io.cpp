@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "pcr_pro/io/cloud_io.h"
+#include "pcr_pro/io/text_escape.h"
 #include "test_helpers.h"
 
 namespace pcr_pro {
@@ -180,6 +181,17 @@ TEST(CloudIo, ErrorsNameTheFile) {
     EXPECT_EQ(e.find('\n'), std::string::npos) << c.first;
   }
   EXPECT_NE(errorOf("/nonexistent/x.pcd").find("/nonexistent/x.pcd"), std::string::npos);
+}
+
+// The bench's CSV writers quote their text fields with csvField(): a method name with a comma once
+// split its row into one column too many.
+TEST(CsvField, QuotesOnlyFieldsThatWouldSplitTheRow) {
+  EXPECT_EQ(csvField("pcr_pro refined"), "pcr_pro refined");
+  EXPECT_EQ(csvField(""), "");
+  EXPECT_EQ(csvField("refinement, with jackknife"), "\"refinement, with jackknife\"");
+  EXPECT_EQ(csvField("say \"hi\""), "\"say \"\"hi\"\"\"");
+  EXPECT_EQ(csvField("two\nlines"), "\"two\nlines\"");
+  EXPECT_EQ(csvField("cr\r"), "\"cr\r\"");
 }
 
 }  // namespace

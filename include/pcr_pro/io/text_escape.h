@@ -20,4 +20,11 @@ namespace pcr_pro {
  */
 std::string printable(const std::string& text, std::size_t max_length = 64);
 
+/**
+ * @brief One field of a CSV row (RFC 4180): the text as it is, or, when it holds a comma, a
+ * double quote, a carriage return or a line feed, in double quotes with each double quote
+ * doubled, so that a reader splits the row where the writer meant.
+ */
+std::string csvField(const std::string& text);
+
 }  // namespace pcr_pro
