@@ -16,8 +16,10 @@ namespace test {
  * runs give (and a quarter of the rendering and SIFT cost of 640x480); paths of about 5 keyframes
  * as in the merge tests (60 deg of azimuth, a keyframe every 15 deg or 0.45 m).
  * @param[in] seed the world's index within its cell (simulator seed 1000 + seed)
+ * @param[in] source_noise agent_b's (the merges' source's) own inverse-depth noise; < 0 = `noise`
  */
-inline SimulatorOptions benchWorldOptions(double overlap, double drift, double noise, int seed, bool apart) {
+inline SimulatorOptions benchWorldOptions(double overlap, double drift, double noise, int seed, bool apart,
+                                          double source_noise = -1.0) {
   SimulatorOptions o;
   o.seed = static_cast<std::uint64_t>(1000 + seed);
   o.agents = apart ? 3 : 2;
@@ -30,6 +32,10 @@ inline SimulatorOptions benchWorldOptions(double overlap, double drift, double n
   o.drift.scale_drift = (seed % 2 ? -1.0 : 1.0) * drift;
   o.drift.bend_deg = 40.0 * drift;
   o.map.semi_dense.idepth_noise = noise;
+  if (source_noise >= 0.0) {  // agent_b (the merges' source) at its own inverse-depth noise
+    o.per_agent.resize(2);
+    o.per_agent[1].idepth_noise = source_noise;
+  }
   return o;
 }
 

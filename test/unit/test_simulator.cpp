@@ -538,6 +538,49 @@ TEST(SimDrift, ScaleAndBendBuildUpAlongThePath) {
             0.03);
 }
 
+// per_agent[i].idepth_noise: one agent's keyframes get another inverse-depth noise, the other
+// agent's nothing changes. The same pixels are drawn with the same random numbers, so the
+// variance of every pixel scales by the square of the ratio and the points move along their rays.
+TEST(SimNoise, PerAgentInverseDepthNoiseChangesOnlyThatAgent) {
+  SimulatorOptions o = quickOptions(44);
+  o.trajectory.max_keyframes = 3;
+  o.map.semi_dense.outlier_fraction = 0.0;
+  const Simulation plain = simulate(o);
+  o.per_agent.resize(2);
+  o.per_agent[1].idepth_noise = 0.03;  // three times the default 0.01
+  const Simulation noisy = simulate(o);
+  EXPECT_DOUBLE_EQ(noisy.agents[0].idepth_noise, 0.01);
+  EXPECT_DOUBLE_EQ(noisy.agents[1].idepth_noise, 0.03);
+  for (std::size_t i = 0; i < 2; ++i) {
+    ASSERT_EQ(plain.agents[i].keyframes.size(), noisy.agents[i].keyframes.size());
+    for (std::size_t k = 0; k < plain.agents[i].keyframes.size(); ++k) {
+      const SemiDenseKeyframe& a = plain.agents[i].keyframes[k].semi_dense;
+      const SemiDenseKeyframe& b = noisy.agents[i].keyframes[k].semi_dense;
+      int both = 0, moved = 0;
+      for (int r = 0; r < a.idepth.rows; ++r) {
+        for (int c = 0; c < a.idepth.cols; ++c) {
+          if (!(a.idepth.at<float>(r, c) > 0.0f && b.idepth.at<float>(r, c) > 0.0f)) continue;
+          ++both;
+          const double ratio = b.idepth_var.at<float>(r, c) / a.idepth_var.at<float>(r, c);
+          EXPECT_NEAR(ratio, i == 0 ? 1.0 : 9.0, 1e-4 * ratio) << "agent " << i << " keyframe " << k;
+          if (a.idepth.at<float>(r, c) != b.idepth.at<float>(r, c)) ++moved;
+        }
+      }
+      ASSERT_GT(both, 1000);
+      if (i == 0) {
+        EXPECT_EQ(moved, 0);
+      } else {
+        EXPECT_GT(moved, both / 2);
+      }
+    }
+  }
+  // The maps: agent_a's cloud is the same, agent_b's is not.
+  ASSERT_EQ(plain.agents[0].map.cloud.cols(), noisy.agents[0].map.cloud.cols());
+  EXPECT_EQ((plain.agents[0].map.cloud - noisy.agents[0].map.cloud).cwiseAbs().maxCoeff(), 0.0);
+  EXPECT_FALSE(plain.agents[1].map.cloud.cols() == noisy.agents[1].map.cloud.cols() &&
+               plain.agents[1].map.cloud.isApprox(noisy.agents[1].map.cloud, 1e-6));
+}
+
 TEST(SimDrift, LoopClosureMovesThePosesBackAndTheGraphSaysSo) {
   SimulatorOptions o = quickOptions(47);
   o.agents = 1;
@@ -770,6 +813,7 @@ TEST(SimConfig, ShippedConfigIsTheDefaultsAndRoundTrips) {
   o.per_agent[0].name = "robot_one";
   o.per_agent[1].scale = 0.1;
   o.per_agent[1].bend_deg = -2.5;
+  o.per_agent[1].idepth_noise = 0.03;
   const std::string yaml = simulatorConfigYaml(o);
   EXPECT_EQ(simulatorConfigYaml(parseSimulatorConfig(yaml, "test")), yaml);
 }
@@ -837,6 +881,7 @@ TEST(SimConfig, BadConfigsNameTheKey) {
       {"agents: 2\nper_agent: [{}, {}, {}]", "per_agent"},
       {"per_agent: [{name: a/b}]", "per_agent[0].name"},
       {"per_agent: [{name: x}, {name: x}]", "per_agent[1].name"},
+      {"per_agent: [{}, {idepth_noise: -0.01}]", "per_agent[1].idepth_noise: must be >= 0 and finite, got -0.01"},
       {"world: {texture: {texel: 0}}", "world.texture.texel"},
       {"agents: two", "agents"},
       {"camera: {width: 0}", "camera"},

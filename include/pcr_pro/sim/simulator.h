@@ -115,6 +115,10 @@ struct AgentOptions {
   std::optional<double> view_angle_deg;      ///< [deg], in [-60, 60]
   std::optional<double> scale_drift;         ///< overrides drift.scale_drift
   std::optional<double> bend_deg;            ///< overrides drift.bend_deg
+  /// Overrides map.semi_dense.idepth_noise for this agent's keyframes [-], >= 0: two agents
+  /// whose maps are not equally noisy (another camera, farther walls, weaker texture), as real
+  /// pairs of maps seldom are.
+  std::optional<double> idepth_noise;
 };
 
 /// Everything simulate() needs. Defaults: 2 agents, 50 % overlap, 30 deg view-angle
@@ -170,6 +174,7 @@ struct SimAgent {
   std::string name;
   Sim3 world_to_map;   ///< world -> map at the path start (drift-free) [map units / m]
   double scale_drift = 0.0, bend_deg = 0.0;  ///< the drift this agent got
+  double idepth_noise = 0.0;  ///< the semi-dense inverse-depth noise of its keyframes [-]
   double azimuth_start_deg = 0.0, azimuth_span_deg = 0.0, view_angle_deg = 0.0;
   std::vector<SimKeyframe> keyframes;
   /// The map as bundles hold it: frame "<name>/map", the cloud mapped by the map poses, the

@@ -40,6 +40,7 @@ struct ResolvedAgent {
   double scale = 1.0;
   AgentPath path;
   double scale_drift = 0.0, bend_deg = 0.0;
+  double idepth_noise = 0.0;
   bool azimuth_given = false;
 };
 
@@ -67,6 +68,7 @@ std::vector<ResolvedAgent> resolveAgents(const SimulatorOptions& o) {
     r.path.seed = subSeed(o.seed, kPathStream + static_cast<std::uint64_t>(i));
     r.scale_drift = a.scale_drift.value_or(o.drift.scale_drift);
     r.bend_deg = a.bend_deg.value_or(o.drift.bend_deg);
+    r.idepth_noise = a.idepth_noise.value_or(o.map.semi_dense.idepth_noise);
     out.push_back(r);
   }
   return out;
@@ -189,6 +191,9 @@ SimAgent makeAgent(const World& world, const SimulatorOptions& o, const Resolved
   agent.name = r.name;
   agent.scale_drift = r.scale_drift;
   agent.bend_deg = r.bend_deg;
+  agent.idepth_noise = r.idepth_noise;
+  SemiDenseOptions semi_dense = o.map.semi_dense;
+  semi_dense.idepth_noise = r.idepth_noise;
   agent.azimuth_start_deg = r.path.azimuth_start_deg;
   agent.azimuth_span_deg = r.path.azimuth_span_deg;
   agent.view_angle_deg = r.path.view_angle_deg;
@@ -217,7 +222,7 @@ SimAgent makeAgent(const World& world, const SimulatorOptions& o, const Resolved
     t = Clock::now();
     kf.image = view.image;
     kf.depth = view.depth;
-    kf.semi_dense = sampleSemiDense(kf.image, kf.depth, o.camera, o.map.semi_dense, subSeed(o.seed, kSemiDenseStream + kf.id));
+    kf.semi_dense = sampleSemiDense(kf.image, kf.depth, o.camera, semi_dense, subSeed(o.seed, kSemiDenseStream + kf.id));
     // LSD normalises the mean of its (estimated) inverse depth to 1.
     const cv::Scalar mean = cv::mean(kf.semi_dense.idepth, kf.semi_dense.idepth > 0.0f);
     kf.lsd_scale = mean[0] > 0.0 ? 1.0 / mean[0] : 1.0;

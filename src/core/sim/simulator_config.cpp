@@ -139,6 +139,9 @@ void validateAgent(const AgentOptions& a, std::size_t i) {
   if (a.azimuth_span_deg) range(f + "azimuth_span_deg", *a.azimuth_span_deg, 1.0, 360.0);
   if (a.view_angle_deg) range(f + "view_angle_deg", *a.view_angle_deg, -60.0, 60.0);
   validateDrift(f, a.scale_drift.value_or(0.0), a.bend_deg.value_or(0.0));
+  if (a.idepth_noise && !(*a.idepth_noise >= 0.0 && std::isfinite(*a.idepth_noise))) {
+    throw InputError(f + "idepth_noise: must be >= 0 and finite, got " + num(*a.idepth_noise));
+  }
 }
 
 void optionalDouble(Block* b, const std::string& key, std::optional<double>* v) {
@@ -174,6 +177,7 @@ void loadAgents(Block* top, std::vector<AgentOptions>* agents) {
     optionalDouble(&b, "view_angle_deg", &a.view_angle_deg);
     optionalDouble(&b, "scale_drift", &a.scale_drift);
     optionalDouble(&b, "bend_deg", &a.bend_deg);
+    optionalDouble(&b, "idepth_noise", &a.idepth_noise);
     b.finish();
     agents->push_back(a);
   }
@@ -287,6 +291,7 @@ std::string simulatorConfigYaml(const SimulatorOptions& o) {
       optionalYaml(y, "view_angle_deg", a.view_angle_deg);
       optionalYaml(y, "scale_drift", a.scale_drift);
       optionalYaml(y, "bend_deg", a.bend_deg);
+      optionalYaml(y, "idepth_noise", a.idepth_noise);
       y << "}\n";
     }
   }

@@ -59,6 +59,7 @@ std::string agentsYaml(const Simulation& sim) {
     y << "  " << a.name << ":\n"
       << "    world_to_map: " << sim3FlowYaml(a.world_to_map) << "\n"
       << "    scale_drift: " << num(a.scale_drift) << "\n    bend_deg: " << num(a.bend_deg) << "\n"
+      << "    idepth_noise: " << num(a.idepth_noise) << "\n"
       << "    azimuth_start_deg: " << num(a.azimuth_start_deg) << "\n    azimuth_span_deg: " << num(a.azimuth_span_deg)
       << "\n    view_angle_deg: " << num(a.view_angle_deg) << "\n    cloud_points: " << a.map.cloud.cols() << "\n"
       << "    keyframes:\n";
