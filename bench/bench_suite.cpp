@@ -2,7 +2,7 @@
 // Markdown fragments and CSV files into an output directory; every number comes from this run.
 //
 // Usage: pcr_pro_bench_suite OUTPUT_DIR [--quick] [--ours-only] [--only SECTION[,SECTION...]]
-//   SECTION: real, simulated, heldout, timing, consistency, sweep, car
+//   SECTION: real, simulated, heldout, unequal, timing, consistency, sweep, car
 //   pcr_pro_bench_suite --memory N merge|idle   (internal: the timing section's memory probe)
 #include <omp.h>
 
@@ -31,6 +31,7 @@ const std::vector<Section>& sections() {
       {"real", sectionRealCases},
       {"simulated", sectionSimulated},
       {"heldout", sectionHeldOut},
+      {"unequal", sectionUnequal},
       {"timing", sectionTiming},
       {"consistency", sectionConsistency},
       {"sweep", sectionSweep},

@@ -60,6 +60,8 @@ void sectionRealCases(Output& out, const SuiteConfig& config, std::FILE* headlin
 void sectionSimulated(Output& out, const SuiteConfig& config, std::FILE* headline);
 /// The simulated worlds' cells with the next four seeds, ours only (heldout.md, heldout.csv).
 void sectionHeldOut(Output& out, const SuiteConfig& config, std::FILE* headline);
+/// Maps of unequal noise (agent_b 0.03, agent_a 0.01), seeds 0-5, ours only (unequal.md, unequal.csv).
+void sectionUnequal(Output& out, const SuiteConfig& config, std::FILE* headline);
 
 }  // namespace bench
 }  // namespace pcr_pro

@@ -93,6 +93,10 @@ doc="$here/docs/BENCHMARKS.md"
   echo
   cat "$out/heldout.md" 2>/dev/null || echo "The held-out section wrote nothing (a run older than the section)."
   echo
+  echo "## Simulated worlds whose two maps are not equally noisy"
+  echo
+  cat "$out/unequal.md" 2>/dev/null || echo "The unequal-noise section wrote nothing (a run older than the section)."
+  echo
   echo "## Covariance consistency (Monte-Carlo, re-matched correspondences)"
   echo
   cat "$out/nees.md"
