@@ -235,9 +235,9 @@ void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results) {
   const auto line = [f](const CaseResult& c, const std::string& method, const std::string& status, const Score& s,
                         bool made, double ms) {
     std::fprintf(f, "%s,%d,%s,%s,%.5g,%.5g,%.5g,%d,%.5g,%.5g,%.5g,%.5g,%.5g,%.5g,%.1f\n", csvField(c.name).c_str(),
-                 c.overlap ? 1 : 0, csvField(method).c_str(), csvField(status).c_str(), s.rotation_deg, s.translation_pct, s.scale_pct,
-                 made && s.within_floors ? 1 : 0, s.nees_rot, s.nees6, s.nees_scale, s.raw_rot, s.raw6, s.raw_scale,
-                 ms);
+                 c.overlap ? 1 : 0, csvField(method).c_str(), csvField(status).c_str(), s.rotation_deg,
+                 s.translation_pct, s.scale_pct, made && s.within_floors ? 1 : 0, s.nees_rot, s.nees6, s.nees_scale,
+                 s.raw_rot, s.raw6, s.raw_scale, ms);
   };
   for (const CaseResult& c : results) {
     line(c, "pcr_pro reported", c.status, c.reported, c.reported.has, c.ms);

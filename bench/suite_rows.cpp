@@ -43,9 +43,9 @@ Row fromPeer(const PeerResult& p, const Sim3& truth, double extent) {
 void writeRows(std::FILE* f, const std::vector<Row>& rows) {
   std::fprintf(f, "method,variant,ratio,roll_deg,sparsity,status,rotation_deg,translation,scale_rel,success,ms\n");
   for (const Row& r : rows) {
-    std::fprintf(f, "%s,%s,%g,%g,%g,%s,%.6g,%.6g,%.6g,%d,%.2f\n", csvField(r.method).c_str(), csvField(r.variant).c_str(), r.ratio,
-                 r.roll, r.sparsity, csvField(r.status).c_str(), r.err.rotation_deg, r.err.translation, r.err.scale_rel, r.ok ? 1 : 0,
-                 r.ms);
+    std::fprintf(f, "%s,%s,%g,%g,%g,%s,%.6g,%.6g,%.6g,%d,%.2f\n", csvField(r.method).c_str(),
+                 csvField(r.variant).c_str(), r.ratio, r.roll, r.sparsity, csvField(r.status).c_str(),
+                 r.err.rotation_deg, r.err.translation, r.err.scale_rel, r.ok ? 1 : 0, r.ms);
   }
 }
 

@@ -98,7 +98,9 @@ TEST(Filters, MaxPointsIndicesAreTheColumnsTheFilterKeeps) {
   ASSERT_EQ(kept.cols(), 137);
   for (std::size_t k = 0; k < idx.size(); ++k) {
     EXPECT_EQ(kept.col(static_cast<Eigen::Index>(k)), c.col(idx[k])) << "entry " << k;
-    if (k > 0) EXPECT_LT(idx[k - 1], idx[k]);
+    if (k > 0) {
+      EXPECT_LT(idx[k - 1], idx[k]);
+    }
   }
   o.max_points = 0;
   EXPECT_EQ(maxPointsIndices(c.cols(), o).size(), 1000u);

@@ -222,7 +222,8 @@ SimAgent makeAgent(const World& world, const SimulatorOptions& o, const Resolved
     t = Clock::now();
     kf.image = view.image;
     kf.depth = view.depth;
-    kf.semi_dense = sampleSemiDense(kf.image, kf.depth, o.camera, semi_dense, subSeed(o.seed, kSemiDenseStream + kf.id));
+    kf.semi_dense =
+        sampleSemiDense(kf.image, kf.depth, o.camera, semi_dense, subSeed(o.seed, kSemiDenseStream + kf.id));
     // LSD normalises the mean of its (estimated) inverse depth to 1.
     const cv::Scalar mean = cv::mean(kf.semi_dense.idepth, kf.semi_dense.idepth > 0.0f);
     kf.lsd_scale = mean[0] > 0.0 ? 1.0 / mean[0] : 1.0;
