@@ -31,7 +31,7 @@ struct SimSweep {
   /// What the cells are (a sentence of STEM.md).
   const char* cells_text = "every overlap × drift at noise 0.01, and noise 0.03 at drift 2.5 % for every overlap";
   /// The headline's label of a sweep without peers.
-  const char* label = "Held-out simulated worlds";
+  const char* label = "";
 };
 
 // Every overlap x drift at the simulator's default noise (0.01), and three times that noise at
@@ -61,6 +61,7 @@ SimSweep heldOutSweep(bool quick) {
   s.seeds = quick ? 1 : 4;
   s.peers = false;
   s.stem = "heldout";
+  s.label = "Held-out simulated worlds";
   return s;
 }
 

@@ -547,10 +547,11 @@ TEST(SimNoise, PerAgentInverseDepthNoiseChangesOnlyThatAgent) {
   o.map.semi_dense.outlier_fraction = 0.0;
   const Simulation plain = simulate(o);
   o.per_agent.resize(2);
-  o.per_agent[1].idepth_noise = 0.03;  // three times the default 0.01
+  const double base = o.map.semi_dense.idepth_noise, own = 3.0 * base;
+  o.per_agent[1].idepth_noise = own;
   const Simulation noisy = simulate(o);
-  EXPECT_DOUBLE_EQ(noisy.agents[0].idepth_noise, 0.01);
-  EXPECT_DOUBLE_EQ(noisy.agents[1].idepth_noise, 0.03);
+  EXPECT_DOUBLE_EQ(noisy.agents[0].idepth_noise, base);
+  EXPECT_DOUBLE_EQ(noisy.agents[1].idepth_noise, own);
   for (std::size_t i = 0; i < 2; ++i) {
     ASSERT_EQ(plain.agents[i].keyframes.size(), noisy.agents[i].keyframes.size());
     for (std::size_t k = 0; k < plain.agents[i].keyframes.size(); ++k) {
@@ -562,7 +563,8 @@ TEST(SimNoise, PerAgentInverseDepthNoiseChangesOnlyThatAgent) {
           if (!(a.idepth.at<float>(r, c) > 0.0f && b.idepth.at<float>(r, c) > 0.0f)) continue;
           ++both;
           const double ratio = b.idepth_var.at<float>(r, c) / a.idepth_var.at<float>(r, c);
-          EXPECT_NEAR(ratio, i == 0 ? 1.0 : 9.0, 1e-4 * ratio) << "agent " << i << " keyframe " << k;
+          const double expected = i == 0 ? 1.0 : (own / base) * (own / base);
+          EXPECT_NEAR(ratio, expected, 1e-4 * ratio) << "agent " << i << " keyframe " << k;
           if (a.idepth.at<float>(r, c) != b.idepth.at<float>(r, c)) ++moved;
         }
       }
