@@ -3,6 +3,7 @@
 // several seeds per cell, each merged with depth images, with the keyframes' own semi-dense depth
 // (as LSD-SLAM gives it) and with neither; a third agent that does not overlap checks false
 // merges. Ours and Open3D in the same run, against the simulator's exact truth.
+#include <algorithm>
 #include <functional>
 #include <memory>
 
@@ -16,11 +17,17 @@ namespace bench {
 namespace {
 
 // One cell of the sweep: overlap, scale drift, semi-dense inverse-depth noise (agent_b's own
-// when source_noise >= 0).
+// when source_noise >= 0); with both_orders each world is also merged the other way round
+// (agent_a onto agent_b).
 struct SimCell {
   double overlap, drift, noise;
   double source_noise = -1.0;
+  bool both_orders = false;
 };
+
+// The cell texts of the two orders of a both_orders cell, which the noise grouping then tells apart.
+constexpr const char* kForwardCell = ", b → a (the noisier map as source)";
+constexpr const char* kReversedCell = ", a → b (the noisier map as target)";
 
 struct SimSweep {
   std::vector<SimCell> cells;
@@ -41,6 +48,7 @@ SimSweep simSweep(bool quick) {
   if (quick) {
     s.cells = {{0.3, 0.05, 0.01}};
     s.seeds = 1;
+    s.cells_text = "overlap 30 %, drift 5 %, noise 0.01 (quick mode)";
     return s;
   }
   for (double overlap : {0.15, 0.35, 0.6}) {
@@ -65,31 +73,37 @@ SimSweep heldOutSweep(bool quick) {
   return s;
 }
 
-// Maps that are not equally noisy, as real pairs seldom are: agent_b (the source) at inverse-depth
-// noise 0.03, agent_a at 0.01, drift 2.5 %, every overlap, seeds 0-5, ours only. The refinement
-// finds a noisier map smaller (README, Troubleshooting); the simulated section's cells give both
-// maps of a world the same noise, where much of that cancels.
+// Maps that are not equally noisy, as real pairs seldom are: agent_b at inverse-depth noise 0.03,
+// agent_a at 0.01, drift 2.5 %, every overlap, seeds 0-5, ours only; each world merged b -> a (the
+// noisier map as source) and a -> b (as target). The refinement finds a noisier map smaller, and
+// fewer merges miss with it as target (README, Troubleshooting); the simulated section's cells
+// give both maps of a world the same noise, where much of that cancels.
 SimSweep unequalSweep(bool quick) {
   SimSweep s;
-  for (double overlap : {0.15, 0.35, 0.6}) s.cells.push_back({overlap, 0.025, 0.01, 0.03});
+  for (double overlap : {0.15, 0.35, 0.6}) s.cells.push_back({overlap, 0.025, 0.01, 0.03, true});
   if (quick) s.cells.resize(1);
   s.seeds = quick ? 1 : 6;
   s.peers = false;
   s.stem = "unequal";
-  s.cells_text = "agent_b's (the source's) inverse-depth noise 0.03, agent_a's 0.01, drift 2.5 %, every overlap";
+  s.cells_text = quick ? "agent_b's inverse-depth noise 0.03, agent_a's 0.01, drift 2.5 %, overlap 15 % (quick mode), "
+                         "each world merged b → a and a → b"
+                       : "agent_b's inverse-depth noise 0.03, agent_a's 0.01, drift 2.5 %, every overlap, each world "
+                         "merged b → a (the noisier map as source) and a → b (as target)";
   s.label = "Unequal noise";
   return s;
 }
 
 std::string cellName(const SimCell& c) {
   return "overlap " + fmt(100 * c.overlap, 0) + " %, drift " + fmt(100 * c.drift, 1) + " %, noise " + fmt(c.noise, 2) +
-         (c.source_noise >= 0.0 ? " (source " + fmt(c.source_noise, 2) + ")" : "");
+         (c.source_noise >= 0.0 ? " (agent_b " + fmt(c.source_noise, 2) + ")" : "");
 }
 
 // The three merges of a world (keyframe depth from depth images, from the keyframes' own
-// semi-dense depth, from the map cloud) and, with a third agent, c -> a.
-void runWorld(const Simulation& sim, const std::string& tag, const std::string& cell, const CaseRunOptions& options,
-              std::vector<CaseResult>& results, std::map<std::string, std::vector<PeerRun>>& peer_cache) {
+// semi-dense depth, from the map cloud), b -> a and with both_orders also a -> b, and, with a
+// third agent, c -> a.
+void runWorld(const Simulation& sim, const std::string& tag, const std::string& cell, bool both_orders,
+              const CaseRunOptions& options, std::vector<CaseResult>& results,
+              std::map<std::string, std::vector<PeerRun>>& peer_cache) {
   const AgentMap& a = sim.agents[0].map;
   const AgentMap& b = sim.agents[1].map;
   const AgentMap a_nodepth = test::withoutDepthImages(a), b_nodepth = test::withoutDepthImages(b);
@@ -98,27 +112,31 @@ void runWorld(const Simulation& sim, const std::string& tag, const std::string& 
   struct Variant {
     const char* name;
     const char* cell;
-    const AgentMap *source, *target;
+    const AgentMap *b, *a;
   };
   const Variant variants[] = {{"/depth", ", depth images", &b, &a},
                               {"/lsd", ", LSD keyframe depth", &b_lsd, &a_lsd},
                               {"/nodepth", ", no depth images", &b_nodepth, &a_nodepth}};
-  // One pipeline for the three merges: the images are the same, so the later ones take their
-  // SIFT features from the cache (their time is then that of a warm merge).
+  // One pipeline for the merges: the images are the same, so the later ones take their SIFT
+  // features from the cache (their time is then that of a warm merge).
   MergePipeline pipeline{MergeOptions()};
-  for (const Variant& v : variants) {
-    CaseInput in;
-    in.name = tag + v.name;
-    in.family = "simulated";
-    in.cell = cell + v.cell;
-    in.overlap = sim.pair(0, 1).overlap;
-    in.source = v.source;
-    in.target = v.target;
-    in.truth = sim.pair(0, 1).target_source;
-    for (const SimKeyframePair& k : sim.pair(0, 1).keyframe_pairs) in.local_truths[{k.target_id, k.source_id}] = k.target_source;
-    in.clouds_key = tag;
-    in.pipeline = &pipeline;
-    results.push_back(runCase(in, options, peer_cache));
+  for (const bool reversed : {false, true}) {
+    if (reversed && !both_orders) break;
+    const SimPairTruth& truth = reversed ? sim.pair(1, 0) : sim.pair(0, 1);
+    for (const Variant& v : variants) {
+      CaseInput in;
+      in.name = tag + (reversed ? "/reversed" : "") + v.name;
+      in.family = "simulated";
+      in.cell = cell + (both_orders ? (reversed ? kReversedCell : kForwardCell) : "") + v.cell;
+      in.overlap = truth.overlap;
+      in.source = reversed ? v.a : v.b;
+      in.target = reversed ? v.b : v.a;
+      in.truth = truth.target_source;
+      for (const SimKeyframePair& k : truth.keyframe_pairs) in.local_truths[{k.target_id, k.source_id}] = k.target_source;
+      in.clouds_key = tag + (reversed ? "/reversed" : "");
+      in.pipeline = &pipeline;
+      results.push_back(runCase(in, options, peer_cache));
+    }
   }
   if (sim.agents.size() > 2 && !sim.pair(0, 2).overlap) {
     CaseInput in;
@@ -144,7 +162,7 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
   std::fprintf(md, "Worlds made in this run by `simulate()` (seeds 1000+k, k = %d–%d; 2 agents at the cell's overlap, 30° "
                    "apart in view angle, 320×240 keyframes, about 5 per agent%s). Scale drift of either sign over each path with a map bend of "
                    "40° per unit of drift; semi-dense inverse-depth noise at the reference gradient as given; each "
-                   "world merged three times: with its depth images (dense, exact), with each keyframe's own "
+                   "world merged three times%s: with its depth images (dense, exact), with each keyframe's own "
                    "semi-dense inverse depth and variance as LSD-SLAM publishes it (what the node merges), and with "
                    "neither (keyframe depth from the map cloud); one pipeline, so the second and third take their SIFT "
                    "features from the cache and their time is a warm merge's. "
@@ -155,6 +173,9 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                    "the NEES. Same columns and floors as the real cases; %zu merges in %.0f s.\n\n",
                s.first_seed, s.first_seed + s.seeds - 1,
                s.first_seed == 0 ? "; a third agent that does not overlap in seed k = 0 of each cell" : "",
+               std::any_of(s.cells.begin(), s.cells.end(), [](const SimCell& c) { return c.both_orders; })
+                   ? " in each order (b → a, then a → b: the same world, the roles of source and target exchanged)"
+                   : "",
                s.cells_text,
                s.peers ? "Open3D runs every setting on the first seed of each cell and the best of those on the others."
                        : "No peer runs on these worlds (ours only).",
@@ -211,24 +232,33 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                             " (floors: **" + (neesFloorsMet(nl) ? "met" : "NOT met") + "**)";
   if (!s.peers) {
     std::fprintf(headline,
-                 "- **%s** (%zu cells: %s; seeds %d–%d, ours only): **%d / %d = %.1f %%** "
+                 "- **%s** (%zu cell%s: %s; seeds %d–%d, ours only): **%d / %d = %.1f %%** "
                  "within the floors (keyframe-only %d, refined %d), %d merged; ANEES reported rotation %s, 6-DoF %s, "
-                 "scale %s (floors: **%s**)%s; refinement alone from the exact truth within the floors on %d / %d.\n",
-                 s.label, s.cells.size(), s.cells_text, s.first_seed, s.first_seed + s.seeds - 1, a.success,
+                 "scale %s (floors: **%s**)%s; refinement alone from the exact truth within the floors on %d / %d",
+                 s.label, s.cells.size(), s.cells.size() == 1 ? "" : "s", s.cells_text, s.first_seed, s.first_seed + s.seeds - 1, a.success,
                  a.overlapping, rate,
                  a.keyframe_success, a.refined_success, a.merged, neesCell(n.anees_rot, n.under_rot).c_str(),
                  neesCell(n.anees6, n.under6).c_str(), neesCell(n.anees_scale, n.under_scale).c_str(),
                  neesFloorsMet(n) ? "met" : "NOT met", local.c_str(), a.icp_from_truth_success, a.icp_from_truth_run);
+    // Both orders of one world: each order's count, which the totals above pool.
+    std::vector<CaseResult> order[2];
+    for (const CaseResult& c : results) order[c.cell.find(kReversedCell) != std::string::npos].push_back(c);
+    if (!order[1].empty()) {
+      const Aggregate b_onto_a = aggregate(order[0], best), a_onto_b = aggregate(order[1], best);
+      std::fprintf(headline, ". By order: b → a %d / %d (keyframe-only %d, refined %d), a → b %d / %d (%d, %d)",
+                   b_onto_a.success, b_onto_a.overlapping, b_onto_a.keyframe_success, b_onto_a.refined_success,
+                   a_onto_b.success, a_onto_b.overlapping, a_onto_b.keyframe_success, a_onto_b.refined_success);
+    }
+    std::fprintf(headline, ".\n");
     return;
   }
   std::fprintf(headline,
-               "- **Simulated worlds** (%zu cells of overlap 15–60 %%, scale drift 0–5 %%, inverse-depth noise "
-               "0.01–0.03; %d seed(s) per cell, each merged with depth images, with LSD-SLAM's keyframe depth and "
+               "- **Simulated worlds** (%zu cell%s: %s; %d seed(s) per cell, each merged with depth images, with LSD-SLAM's keyframe depth and "
                "with neither): **%d / %d = %.1f %%** within the floors (keyframe-only %d, refined %d); floor ≥ 99 %%: **%s**; false merges %d / %d. ANEES reported rotation %s, 6-DoF %s, scale %s; "
                "floors: **%s**%s. Open3D (best setting): %d / %d, false merges %d / %d. Our refinement alone (no "
                "keyframes) started at the exact truth stays within the floors on %d / %d cases (it must stay there: "
                "**%s**).\n",
-               s.cells.size(), s.seeds, a.success, a.overlapping, rate, a.keyframe_success,
+               s.cells.size(), s.cells.size() == 1 ? "" : "s", s.cells_text, s.seeds, a.success, a.overlapping, rate, a.keyframe_success,
                a.refined_success, rate >= 99.0 ? "met" : "NOT met", a.false_merges, a.apart,
                neesCell(n.anees_rot, n.under_rot).c_str(), neesCell(n.anees6, n.under6).c_str(),
                neesCell(n.anees_scale, n.under_scale).c_str(), neesFloorsMet(n) ? "met" : "NOT met", local.c_str(),
@@ -257,7 +287,7 @@ void runSweep(Output& out, const SuiteConfig& config, const SimSweep& s, std::FI
           simulate(test::benchWorldOptions(c.overlap, c.drift, c.noise, seed, seed == 0, c.source_noise));
       const std::string tag = "o" + fmt(c.overlap, 2) + "_d" + fmt(c.drift, 3) + "_n" + fmt(c.noise, 2) +
                               (c.source_noise >= 0.0 ? "+" + fmt(c.source_noise, 2) : "") + "_s" + std::to_string(seed);
-      runWorld(sim, tag, cellName(c), options, results, peer_cache);
+      runWorld(sim, tag, cellName(c), c.both_orders, options, results, peer_cache);
     }
   }
   if (s.seeds == 1 && options.peers) best["simulated"] = bestOpen3dSetting(results, "simulated");
