@@ -23,6 +23,8 @@ void scoreOurs(const MergeResult& r, const CaseInput& in, const Matrix7d& truth_
   }
   if (r.report.status == Status::kOk && r.report.transform) {
     out.reported = score(*r.report.transform, d.covariance, in.truth, truth_cov, centroid, extent);
+    out.estimate = *r.report.transform;
+    out.covariance = d.covariance;
     if (r.report.keyframe_edge) {
       const auto local = in.local_truths.find({r.report.keyframe_edge->target_keyframe, r.report.keyframe_edge->source_keyframe});
       if (local != in.local_truths.end()) {

@@ -52,6 +52,10 @@ struct CaseResult {
   bool refinement_kept = false;
   int used_pairs = 0;
   Score keyframe, refined, reported;   ///< reported.has only with status OK
+  /// The reported estimate S_target_source and its covariance (similarity_fit.h convention), when
+  /// reported.has: the two orders of one world are compared through them.
+  Sim3 estimate;
+  Matrix7d covariance = Matrix7d::Zero();
   /// The reported estimate and covariance against the local truth of its anchor keyframe pair;
   /// has only when that is known (CaseInput::local_truths).
   Score reported_local;

@@ -20,10 +20,11 @@ struct Floors {
   double scale_pct = 1.5;
 };
 
-/// chi-square 95 % quantiles for 1, 3 and 6 degrees of freedom.
+/// chi-square 95 % quantiles for 1, 3, 6 and 7 degrees of freedom.
 constexpr double kChi2_95_1 = 3.841;
 constexpr double kChi2_95_3 = 7.815;
 constexpr double kChi2_95_6 = 12.592;
+constexpr double kChi2_95_7 = 14.067;
 
 /// How far a case's truth may itself be from the real answer, each taken as a 1-sigma per axis
 /// about `centre` (where the maps overlap): rotation [rad], translation [target units], relative
