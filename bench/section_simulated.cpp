@@ -169,7 +169,9 @@ void runWorld(const Simulation& sim, const std::string& tag, const std::string& 
       in.source = reversed ? v.a : v.b;
       in.target = reversed ? v.b : v.a;
       in.truth = truth.target_source;
-      for (const SimKeyframePair& k : truth.keyframe_pairs) in.local_truths[{k.target_id, k.source_id}] = k.target_source;
+      for (const SimKeyframePair& k : truth.keyframe_pairs) {
+        in.local_truths[{k.target_id, k.source_id}] = k.target_source;
+      }
       in.clouds_key = tag + (reversed ? "/reversed" : "");
       in.pipeline = &pipeline;
       results.push_back(runCase(in, options, peer_cache));
@@ -289,7 +291,8 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                  "- **%s** (%zu cell%s: %s; seeds %d–%d, ours only): **%d / %d = %.1f %%** "
                  "within the floors (keyframe-only %d, refined %d), %d merged; ANEES reported rotation %s, 6-DoF %s, "
                  "scale %s (floors: **%s**)%s; refinement alone from the exact truth within the floors on %d / %d",
-                 s.label, s.cells.size(), s.cells.size() == 1 ? "" : "s", s.cells_text, s.first_seed, s.first_seed + s.seeds - 1, a.success,
+                 s.label, s.cells.size(), s.cells.size() == 1 ? "" : "s", s.cells_text, s.first_seed,
+                 s.first_seed + s.seeds - 1, a.success,
                  a.overlapping, rate,
                  a.keyframe_success, a.refined_success, a.merged, neesCell(n.anees_rot, n.under_rot).c_str(),
                  neesCell(n.anees6, n.under6).c_str(), neesCell(n.anees_scale, n.under_scale).c_str(),
@@ -308,12 +311,14 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
     return;
   }
   std::fprintf(headline,
-               "- **Simulated worlds** (%zu cell%s: %s; %d seed(s) per cell, each merged with depth images, with LSD-SLAM's keyframe depth and "
-               "with neither): **%d / %d = %.1f %%** within the floors (keyframe-only %d, refined %d); floor ≥ 99 %%: **%s**; false merges %d / %d. ANEES reported rotation %s, 6-DoF %s, scale %s; "
-               "floors: **%s**%s. Open3D (best setting): %d / %d, false merges %d / %d. Our refinement alone (no "
-               "keyframes) started at the exact truth stays within the floors on %d / %d cases (it must stay there: "
-               "**%s**).\n",
-               s.cells.size(), s.cells.size() == 1 ? "" : "s", s.cells_text, s.seeds, a.success, a.overlapping, rate, a.keyframe_success,
+               "- **Simulated worlds** (%zu cell%s: %s; %d seed(s) per cell, each merged with depth images, with "
+               "LSD-SLAM's keyframe depth and with neither): **%d / %d = %.1f %%** within the floors (keyframe-only "
+               "%d, refined %d); floor ≥ 99 %%: **%s**; false merges %d / %d. ANEES reported rotation %s, 6-DoF %s, "
+               "scale %s; floors: **%s**%s. Open3D (best setting): %d / %d, false merges %d / %d. Our refinement "
+               "alone (no keyframes) started at the exact truth stays within the floors on %d / %d cases (it must "
+               "stay there: **%s**).\n",
+               s.cells.size(), s.cells.size() == 1 ? "" : "s", s.cells_text, s.seeds, a.success, a.overlapping, rate,
+               a.keyframe_success,
                a.refined_success, rate >= 99.0 ? "met" : "NOT met", a.false_merges, a.apart,
                neesCell(n.anees_rot, n.under_rot).c_str(), neesCell(n.anees6, n.under6).c_str(),
                neesCell(n.anees_scale, n.under_scale).c_str(), neesFloorsMet(n) ? "met" : "NOT met", local.c_str(),
