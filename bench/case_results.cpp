@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "bench_common.h"
+#include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/io/text_escape.h"
 #include "pcr_pro/merge/map_registration.h"
 #include "pcr_pro/merge/merge_options.h"
@@ -373,6 +374,44 @@ void writeOpen3dSweep(std::FILE* md, const std::vector<CaseResult>& results, con
     std::fprintf(md, "\n");
   }
   std::fprintf(md, "\n");
+}
+
+bool symmetryOf(const CaseResult& ba, const CaseResult& ab, double* rotation_deg, double* scale_pct, double* chi2) {
+  if (!ba.reported.has || !ab.reported.has) return false;
+  const Sim3 inverse = ab.estimate.inverse();
+  const Matrix7d ad = similarityAdjoint(inverse);
+  const Matrix7d joint = ba.covariance + ad * ab.covariance * ad.transpose();
+  const Eigen::Matrix<double, 7, 1> d = similarityDifference(ba.estimate, inverse);
+  *chi2 = d.dot(joint.ldlt().solve(d));
+  *rotation_deg = d.segment<3>(3).norm() * 180.0 / M_PI;
+  *scale_pct = 100.0 * std::abs(std::exp(d(6)) - 1.0);
+  return true;
+}
+
+Symmetry symmetry(const std::vector<std::pair<const CaseResult*, const CaseResult*>>& pairs) {
+  Symmetry out;
+  for (const auto& [ba, ab] : pairs) {
+    double rotation = 0.0, scale = 0.0, chi2 = 0.0;
+    if (!symmetryOf(*ba, *ab, &rotation, &scale, &chi2)) continue;
+    ++out.pairs;
+    out.under += chi2 < kChi2_95_7 ? 1 : 0;
+    out.rotation_deg.push_back(rotation);
+    out.scale_pct.push_back(scale);
+    out.chi2.push_back(chi2);
+  }
+  return out;
+}
+
+std::string symmetryText(const Symmetry& s, const std::string& what) {
+  if (s.pairs == 0) return "";
+  return "a → b inverted against b → a over " + std::to_string(s.pairs) + " " + what +
+         ": rotation between them median " + fmt(median(s.rotation_deg), 2) + "°, largest " +
+         fmt(*std::max_element(s.rotation_deg.begin(), s.rotation_deg.end()), 2) + "°; scale median " +
+         fmt(median(s.scale_pct), 2) + " %, largest " +
+         fmt(*std::max_element(s.scale_pct.begin(), s.scale_pct.end()), 2) +
+         " %; squared Mahalanobis distance under the sum of their covariances median " + fmt(median(s.chi2), 2) +
+         ", " + std::to_string(s.under) + " / " + std::to_string(s.pairs) +
+         " under the χ² 95 % bound of 7 DoF (14.07)";
 }
 
 void writeAggregateTable(std::FILE* md, const std::vector<CaseResult>& results, const std::map<std::string, int>& best) {

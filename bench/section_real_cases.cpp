@@ -75,8 +75,55 @@ std::string cloudsKey(const RealCase& c) {
   return last == "depth" || last == "nodepth" ? parent : c.path;
 }
 
-void writeReal(Output& out, const std::vector<CaseResult>& results, const std::map<std::string, int>& best,
-               std::FILE* headline) {
+// Every case merged the other way round (a -> b: the case's target onto its source), ours only:
+// its own counts, the cases where only one order merged, and how far the two orders' estimates are
+// from being inverses (issue 12: within their uncertainties). @return the headline's clause
+std::string writeBothWays(std::FILE* md, const std::vector<CaseResult>& results,
+                          const std::vector<CaseResult>& reversed, const std::map<std::string, int>& best) {
+  const Aggregate r = aggregate(reversed, best);
+  std::vector<std::pair<const CaseResult*, const CaseResult*>> pairs;
+  std::vector<std::string> one_way;
+  for (std::size_t i = 0; i < results.size() && i < reversed.size(); ++i) {
+    pairs.emplace_back(&results[i], &reversed[i]);
+    if (results[i].overlap && results[i].reported.has != reversed[i].reported.has) {
+      one_way.push_back("`" + results[i].name + "` (b → a " + results[i].status + ", a → b " + reversed[i].status +
+                        ")");
+    }
+  }
+  const Symmetry sym = symmetry(pairs);
+  std::string one_way_text;
+  for (const std::string& c : one_way) one_way_text += (one_way_text.empty() ? "" : ", ") + c;
+  std::fprintf(md, "**Both ways.** Every case merged the other way round as well (a → b: the case's target onto its "
+                   "source, truth inverted, the truth's accuracy in the source's units; ours only, cold feature "
+                   "cache; rows of real_cases_reversed.csv): **%d / %d** within the floors (keyframe-only %d, refined "
+                   "%d), %d merged, false merges %d / %d. Merged one way only: %s. %s.\n\n",
+               r.success, r.overlapping, r.keyframe_success, r.refined_success, r.merged, r.false_merges, r.apart,
+               one_way.empty() ? "none" : one_way_text.c_str(),
+               sym.pairs > 0 ? ("Symmetry: " + symmetryText(sym, "cases merged both ways")).c_str()
+                             : "No case merged both ways");
+  std::fprintf(md, "| case | b → a | a → b | a → b: rot [deg] / trans [%% ext.] / scale [%%] | "
+                   "a → b inverted vs b → a: rot [deg] / scale [%%] / χ² (7 DoF) |\n|---|---|---|---|---|\n");
+  for (std::size_t i = 0; i < results.size() && i < reversed.size(); ++i) {
+    const CaseResult &ba = results[i], &ab = reversed[i];
+    const Score& e = ab.reported;
+    double rotation = 0.0, scale = 0.0, chi2 = 0.0;
+    const bool both = symmetryOf(ba, ab, &rotation, &scale, &chi2);
+    std::fprintf(md, "| %s | %s | %s | %s | %s |\n", ba.name.c_str(), ba.status.c_str(), ab.status.c_str(),
+                 e.has ? (fmt(e.rotation_deg, 2) + " / " + fmt(e.translation_pct, 2) + " / " + fmt(e.scale_pct, 2) +
+                          (ab.overlap ? (e.within_floors ? " ✓" : "") : " (false merge)"))
+                             .c_str()
+                       : "–",
+                 both ? (fmt(rotation, 2) + " / " + fmt(scale, 2) + " / " + fmt(chi2, 2)).c_str() : "–");
+  }
+  std::fprintf(md, "\n");
+  return "Both ways (a → b, ours only): " + std::to_string(r.success) + " / " + std::to_string(r.overlapping) +
+         " within the floors, " + std::to_string(r.merged) + " merged, false merges " + std::to_string(r.false_merges) +
+         " / " + std::to_string(r.apart) + "; merged one way only: " + std::to_string(one_way.size()) +
+         (sym.pairs > 0 ? "; " + symmetryText(sym, "cases merged both ways") : "");
+}
+
+void writeReal(Output& out, const std::vector<CaseResult>& results, const std::vector<CaseResult>& reversed,
+               const std::map<std::string, int>& best, std::FILE* headline) {
   std::FILE* csv = out.open("real_cases.csv");
   writeCaseCsv(csv, results);
   std::fclose(csv);
@@ -97,6 +144,12 @@ void writeReal(Output& out, const std::vector<CaseResult>& results, const std::m
   std::fprintf(md, "Per case (Open3D with its best setting for the family, below):\n\n");
   writeCaseTable(md, results, best);
   writeIcpFromTruth(md, results);
+  const std::string both_ways = reversed.empty() ? "" : writeBothWays(md, results, reversed, best);
+  if (!reversed.empty()) {
+    std::FILE* rcsv = out.open("real_cases_reversed.csv");
+    writeCaseCsv(rcsv, reversed);
+    std::fclose(rcsv);
+  }
   std::fprintf(md, "On 7-Scenes this measures the truth as much as the registration: the truth is uncertain by about "
                    "1° (0.5–3°, above), and PCL's refiners (started from our keyframe-only estimate) mostly end at "
                    "similar distances from it: compare their rows in real_cases.csv. On slambook2's `sharedworld`, whose "
@@ -119,14 +172,15 @@ void writeReal(Output& out, const std::vector<CaseResult>& results, const std::m
                "ANEES reported (truth's accuracy added) rotation %s, 6-DoF %s, scale %s; floors (ANEES in "
                "[0.7, 1.5], ≥ 90 %% under the bound): **%s**. Open3D (best setting per family): %d / %d, false "
                "merges %d / %d, median time %.2f× ours. Our refinement alone (no keyframes) started at the exact "
-               "truth stays within the floors on %d / %d (it must stay there: **%s**).\n",
+               "truth stays within the floors on %d / %d (it must stay there: **%s**)%s%s.\n",
                a.overlapping, a.apart, a.success, a.overlapping, a.keyframe_success, a.refined_success, a.merged,
                a.false_merges, a.apart, a.success == a.overlapping && a.false_merges == 0 ? "met" : "NOT met",
                neesCell(n.anees_rot, n.under_rot).c_str(), neesCell(n.anees6, n.under6).c_str(),
                neesCell(n.anees_scale, n.under_scale).c_str(), neesFloorsMet(n) ? "met" : "NOT met", a.open3d_success,
                a.overlapping, a.open3d_false, a.open3d_apart_ran, a.median_ms > 0 ? a.median_open3d_ms / a.median_ms : 0.0,
                a.icp_from_truth_success, a.icp_from_truth_run,
-               a.icp_from_truth_success == a.icp_from_truth_run ? "met" : "NOT met");
+               a.icp_from_truth_success == a.icp_from_truth_run ? "met" : "NOT met", both_ways.empty() ? "" : ". ",
+               both_ways.c_str());
 }
 
 }  // namespace
@@ -157,9 +211,26 @@ void sectionRealCases(Output& out, const SuiteConfig& config, std::FILE* headlin
     in.clouds_key = cloudsKey(c);
     results.push_back(runCase(in, options, peer_cache));
   }
+  // The same cases the other way round (a -> b), ours only.
+  std::vector<CaseResult> reversed;
+  CaseRunOptions reverse_options;
+  reverse_options.peers = reverse_options.pcl = reverse_options.icp_from_truth = false;
+  for (const RealCase& c : cases) {
+    CaseInput in;
+    in.name = c.path + "/reversed";
+    in.family = familyOf(c);
+    in.cell = cellOf(c);
+    in.overlap = c.overlap;
+    in.source = c.target.get();
+    in.target = c.source.get();
+    in.truth = c.truth.target_source.inverse();
+    in.accuracy = c.accuracy;
+    in.accuracy.translation /= c.truth.target_source.scale();  // into the source's (now the target's) units
+    reversed.push_back(runCase(in, reverse_options, peer_cache));
+  }
   std::map<std::string, int> best;
   for (const std::string f : {"7-Scenes", "slambook2"}) best[f] = bestOpen3dSetting(results, f);
-  writeReal(out, results, best, headline);
+  writeReal(out, results, reversed, best, headline);
 }
 
 }  // namespace bench
