@@ -411,7 +411,7 @@ std::string symmetryText(const Symmetry& s, const std::string& what) {
          fmt(*std::max_element(s.scale_pct.begin(), s.scale_pct.end()), 2) +
          " %; squared Mahalanobis distance under the sum of their covariances median " + fmt(median(s.chi2), 2) +
          ", " + std::to_string(s.under) + " / " + std::to_string(s.pairs) +
-         " under the χ² 95 % bound of 7 DoF (14.07)";
+         " under the χ² 95 % bound of 7 DoF (" + fmt(kChi2_95_7, 2) + ")";
 }
 
 void writeAggregateTable(std::FILE* md, const std::vector<CaseResult>& results, const std::map<std::string, int>& best) {

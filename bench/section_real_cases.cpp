@@ -75,6 +75,24 @@ std::string cloudsKey(const RealCase& c) {
   return last == "depth" || last == "nodepth" ? parent : c.path;
 }
 
+// A case as the bench runs it: as its truth.yaml orders it, or `reversed` (its target onto its
+// source: truth inverted, the truth's translation accuracy in the new target's units).
+CaseInput caseInput(const RealCase& c, bool reversed) {
+  CaseInput in;
+  in.name = reversed ? c.path + "/reversed" : c.path;
+  in.family = familyOf(c);
+  in.cell = cellOf(c);
+  in.overlap = c.overlap;
+  in.source = reversed ? c.target.get() : c.source.get();
+  in.target = reversed ? c.source.get() : c.target.get();
+  in.truth = reversed ? c.truth.target_source.inverse() : c.truth.target_source;
+  in.accuracy = c.accuracy;
+  if (reversed) in.accuracy.translation /= c.truth.target_source.scale();
+  // The peers run on the forward cases only; the reversed ones share no peer results.
+  in.clouds_key = reversed ? "" : cloudsKey(c);
+  return in;
+}
+
 // Every case merged the other way round (a -> b: the case's target onto its source), ours only:
 // its own counts, the cases where only one order merged, and how far the two orders' estimates are
 // from being inverses (issue 12: within their uncertainties). @return the headline's clause
@@ -198,36 +216,12 @@ void sectionRealCases(Output& out, const SuiteConfig& config, std::FILE* headlin
   std::map<std::string, std::vector<PeerRun>> peer_cache;
   CaseRunOptions options;
   options.peers = options.pcl = !config.ours_only;
-  for (const RealCase& c : cases) {
-    CaseInput in;
-    in.name = c.path;
-    in.family = familyOf(c);
-    in.cell = cellOf(c);
-    in.overlap = c.overlap;
-    in.source = c.source.get();
-    in.target = c.target.get();
-    in.truth = c.truth.target_source;
-    in.accuracy = c.accuracy;
-    in.clouds_key = cloudsKey(c);
-    results.push_back(runCase(in, options, peer_cache));
-  }
+  for (const RealCase& c : cases) results.push_back(runCase(caseInput(c, false), options, peer_cache));
   // The same cases the other way round (a -> b), ours only.
   std::vector<CaseResult> reversed;
   CaseRunOptions reverse_options;
   reverse_options.peers = reverse_options.pcl = reverse_options.icp_from_truth = false;
-  for (const RealCase& c : cases) {
-    CaseInput in;
-    in.name = c.path + "/reversed";
-    in.family = familyOf(c);
-    in.cell = cellOf(c);
-    in.overlap = c.overlap;
-    in.source = c.target.get();
-    in.target = c.source.get();
-    in.truth = c.truth.target_source.inverse();
-    in.accuracy = c.accuracy;
-    in.accuracy.translation /= c.truth.target_source.scale();  // into the source's (now the target's) units
-    reversed.push_back(runCase(in, reverse_options, peer_cache));
-  }
+  for (const RealCase& c : cases) reversed.push_back(runCase(caseInput(c, true), reverse_options, peer_cache));
   std::map<std::string, int> best;
   for (const std::string f : {"7-Scenes", "slambook2"}) best[f] = bestOpen3dSetting(results, f);
   writeReal(out, results, reversed, best, headline);

@@ -268,7 +268,7 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                  neesFloorsMet(n) ? "met" : "NOT met", local.c_str(), a.icp_from_truth_success, a.icp_from_truth_run);
     // Both orders of one world: each order's count, which the totals above pool.
     std::vector<CaseResult> order[2];
-    for (const CaseResult& c : results) order[c.cell.find(kReversedCell) != std::string::npos].push_back(c);
+    for (const CaseResult& c : results) order[c.name.find("/reversed/") != std::string::npos].push_back(c);
     if (!order[1].empty()) {
       const Aggregate b_onto_a = aggregate(order[0], best), a_onto_b = aggregate(order[1], best);
       std::fprintf(headline, ". By order: b → a %d / %d (keyframe-only %d, refined %d), a → b %d / %d (%d, %d)",
