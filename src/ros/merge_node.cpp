@@ -29,6 +29,7 @@ std::uint8_t statusCode(Status s) {
     case Status::kDegenerate: return Response::DEGENERATE;
     case Status::kInvalidInput: return Response::INVALID_INPUT;
     case Status::kNoOverlap: return Response::NO_OVERLAP;
+    case Status::kInconsistent: return Response::INCONSISTENT;
   }
   return Response::INVALID_INPUT;
 }

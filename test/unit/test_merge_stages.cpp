@@ -12,7 +12,9 @@
 #include <cstdio>
 #include <memory>
 #include <random>
+#include <set>
 #include <stdexcept>
+#include <string>
 #include <tuple>
 
 #include "pcr_pro/geometry/similarity_fit.h"
@@ -52,6 +54,27 @@ std::vector<PointMatch3> noisyMatches(const Sim3& truth, int n, int groups, doub
     out.push_back(m);
   }
   return out;
+}
+
+// Every status has its own contract name, which parses back (the result YAML and the service's
+// status_name use it); INCONSISTENT is the gates' refusal when the keyframe evidence and the
+// clouds contradict each other (it was reported as ICP_NOT_CONVERGED before).
+TEST(Status, EveryStatusHasItsOwnContractNameThatParsesBack) {
+  const Status all[] = {Status::kOk,         Status::kNotEnoughMatches, Status::kRelativePoseFailed,
+                        Status::kScaleFailed, Status::kIcpNotConverged,  Status::kDegenerate,
+                        Status::kInvalidInput, Status::kNoOverlap,       Status::kInconsistent};
+  std::set<std::string> names;
+  for (const Status s : all) {
+    const std::string name = statusName(s);
+    EXPECT_NE(name, "UNKNOWN");
+    EXPECT_TRUE(names.insert(name).second) << name;
+    Status parsed = Status::kOk;
+    ASSERT_TRUE(parseStatus(name, &parsed)) << name;
+    EXPECT_EQ(parsed, s) << name;
+  }
+  EXPECT_STREQ(statusName(Status::kInconsistent), "INCONSISTENT");
+  Status unused = Status::kOk;
+  EXPECT_FALSE(parseStatus("NOT_A_STATUS", &unused));
 }
 
 TEST(SimilarityFit, MonteCarloNeesOfTheModelIsChiSquareSeven) {
@@ -757,7 +780,7 @@ TEST(MergeGates, ARefinementThatRanOutOfIterationsStillGetsTheCloudsVote) {
   kf.estimate = off;
   stopped.estimate = Sim3();
   const GateVerdict refused = gates.judge(kf, stopped, registration);
-  EXPECT_EQ(refused.status, Status::kIcpNotConverged) << refused.message;
+  EXPECT_EQ(refused.status, Status::kInconsistent) << refused.message;
   EXPECT_TRUE(refused.clouds_prefer_refinement);
   EXPECT_NE(refused.message.find("the refinement's last estimate"), std::string::npos) << refused.message;
 
@@ -805,7 +828,7 @@ TEST(MergeGates, ARefinementBeyondTheCorrectionLimitsMustBeSupportedByTheClouds)
   kf.estimate = turned;
   converged.estimate = Sim3();
   const GateVerdict refused = gates.judge(kf, converged, registration);
-  EXPECT_EQ(refused.status, Status::kIcpNotConverged) << refused.message;
+  EXPECT_EQ(refused.status, Status::kInconsistent) << refused.message;
 }
 
 // A refinement is not kept when it moves the keyframe matches farther than any used pair's own

@@ -37,6 +37,8 @@ enum class Status {
   kDegenerate,
   kInvalidInput,
   kNoOverlap,  ///< the aligned maps share too little of their clouds: refused, not merged
+  /// the keyframe evidence and the clouds contradict each other (merge_gates.h): refused, not merged
+  kInconsistent,
 };
 
 /// @return the contract name of a status, e.g. "NOT_ENOUGH_MATCHES".

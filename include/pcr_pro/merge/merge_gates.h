@@ -16,7 +16,7 @@ namespace pcr_pro {
 
 /// What the gates decided.
 struct GateVerdict {
-  Status status = Status::kOk;  ///< kOk, kDegenerate or a refusal (kNoOverlap, kScaleFailed)
+  Status status = Status::kOk;  ///< kOk, kDegenerate or a refusal (kNoOverlap, kInconsistent)
   std::string message;
   Sim3 estimate;                           ///< the reported S_target_source
   Matrix7d covariance = Matrix7d::Zero();  ///< its covariance (similarity_fit.h convention)

@@ -91,7 +91,7 @@ class MergePipeline {
    * @param[in] source_key, target_key feature-cache keys of the two maps (e.g. agent names)
    * @return report.status OK with S_target_source, covariance and information; otherwise the
    *   stage that refused (NOT_ENOUGH_MATCHES, RELATIVE_POSE_FAILED, SCALE_FAILED, NO_OVERLAP,
-   *   ICP_NOT_CONVERGED, DEGENERATE, INVALID_INPUT for what the data does) and why in
+   *   INCONSISTENT, DEGENERATE, INVALID_INPUT for what the data does) and why in
    *   report.message. Never NaN or infinite numbers with OK.
    * @throw nothing for what the maps hold (see above); std::bad_alloc when memory runs out
    */

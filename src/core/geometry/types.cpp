@@ -5,7 +5,7 @@
 
 namespace pcr_pro {
 namespace {
-constexpr std::array<std::pair<Status, const char*>, 8> kStatusNames{{
+constexpr std::array<std::pair<Status, const char*>, 9> kStatusNames{{
     {Status::kOk, "OK"},
     {Status::kNotEnoughMatches, "NOT_ENOUGH_MATCHES"},
     {Status::kRelativePoseFailed, "RELATIVE_POSE_FAILED"},
@@ -14,6 +14,7 @@ constexpr std::array<std::pair<Status, const char*>, 8> kStatusNames{{
     {Status::kDegenerate, "DEGENERATE"},
     {Status::kInvalidInput, "INVALID_INPUT"},
     {Status::kNoOverlap, "NO_OVERLAP"},
+    {Status::kInconsistent, "INCONSISTENT"},
 }};
 }  // namespace
 

@@ -180,7 +180,7 @@ CloudVote cloudVote(const KeyframeEstimate& keyframes, const Refinement& refinem
 bool cloudsPreferRefinement(const CloudVote& vote, const std::string& why, const char* what, GateVerdict* v) {
   const double overlap_keyframes = vote.keyframes, overlap_refined = vote.refined;
   if (!vote.prefersRefinement()) return false;
-  v->status = Status::kIcpNotConverged;
+  v->status = Status::kInconsistent;
   v->message = "refused: " + why + ", and the clouds fit " + what + " better (overlap " + fmt(100 * overlap_refined) +
                " % against " + fmt(100 * overlap_keyframes) +
                " % at the keyframe estimate): the keyframe evidence is not trusted";
@@ -230,7 +230,7 @@ bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refineme
   // to cover the refinement instead (on the slambook2 frames one pair claimed 0.035 deg in
   // rotation and lay 0.6 deg from the refinement).
   if (keyframes.used_pairs >= 2 && v->refinement_chi2 > kRefuseFactor * options.refinement_agreement_chi2) {
-    v->status = Status::kIcpNotConverged;
+    v->status = Status::kInconsistent;
     v->message = "refused: the refinement and the keyframe matches disagree far beyond their uncertainty (" + why +
                  "; rotation " + fmt(v->rotation_correction_deg) + " deg, scale " +
                  fmt(100 * v->scale_disagreement) + " % apart)";
