@@ -231,9 +231,11 @@ bool refuseOrCover(const KeyframeEstimate& keyframes, const Refinement& refineme
   // rotation and lay 0.6 deg from the refinement).
   if (keyframes.used_pairs >= 2 && v->refinement_chi2 > kRefuseFactor * options.refinement_agreement_chi2) {
     v->status = Status::kInconsistent;
-    v->message = "refused: the refinement and the keyframe matches disagree far beyond their uncertainty (" + why +
-                 "; rotation " + fmt(v->rotation_correction_deg) + " deg, scale " +
-                 fmt(100 * v->scale_disagreement) + " % apart)";
+    v->message = "refused: the refinement and the keyframe matches exclude each other (squared Mahalanobis distance " +
+                 fmt(v->refinement_chi2) + " > " + fmt(kRefuseFactor) + " x merge.refinement_agreement_chi2 " +
+                 fmt(options.refinement_agreement_chi2) + "; rotation " + fmt(v->rotation_correction_deg) +
+                 " deg, scale " + fmt(100 * v->scale_disagreement) +
+                 " % apart): at least one is wrong, and the data cannot say which";
     v->overlap = registration.overlap(v->estimate, options.overlap_distance_factor);
     return true;
   }
