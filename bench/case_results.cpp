@@ -88,7 +88,8 @@ PeerRun icpFromTruth(const CaseInput& in, const Matrix7d& truth_cov, const Eigen
   RegistrationOptions options = MergeOptions().registration;
   options.icp.local_noise = local_noise;
   options.covariance.jackknife_blocks = jackknife_blocks;
-  MapRegistration registration(options, true, MergeOptions().merge.reweigh_keyframe_matches);
+  const MergeGateOptions gates;
+  MapRegistration registration(options, true, gates.reweigh_keyframe_matches, gates.register_noisier_as_target);
   if (!registration.setClouds(in.source->cloud, in.target->cloud).empty()) return run;
   const Refinement r = registration.refine(in.truth, {});
   run.ms = nowMs() - t0;

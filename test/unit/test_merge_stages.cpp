@@ -733,6 +733,59 @@ TEST(MergeGates, AlignedMapsThatDoNotOverlapAreNoOverlap) {
   EXPECT_LT(v.overlap, 0.01);
 }
 
+// merge.register_noisier_as_target: with the source the noisier map, the refinement registers
+// the target onto the source and inverts the result, so both orders of the same two maps run the
+// same ICP: a -> b is exactly the inverse of b -> a, and the covariance, moved by the adjoint,
+// matches the one the ICP would report the other way round to within what the two directions'
+// noise models differ by. The similarity has a scale and a far origin, so a wrong adjoint would
+// show in every block.
+TEST(MapRegistration, TheNoisierMapIsRegisteredOntoTheOtherAndTheResultInverted) {
+  std::mt19937 rng(21);
+  const Cloud clean = test::syntheticScene(4000, 2.0, rng);
+  Cloud noisy = test::syntheticScene(4000, 2.0, rng);
+  std::normal_distribution<double> n(0.0, 0.02);  // surfaces about 4x as thick as the clean map's sampling noise
+  for (Eigen::Index i = 0; i < noisy.cols(); ++i) noisy.col(i) += Eigen::Vector3d(n(rng), n(rng), n(rng));
+  const Sim3 truth(2.5, Eigen::AngleAxisd(test::rad(30.0), Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix(),
+                   Eigen::Vector3d(40.0, -25.0, 10.0));  // S_clean_noisy
+  const Cloud noisy_in_own = truth.inverse().apply(noisy);  // the noisy map in its own frame
+  const MergeGateOptions gates;
+  ASSERT_TRUE(gates.register_noisier_as_target);
+  MapRegistration noisy_source(RegistrationOptions(), true, gates.reweigh_keyframe_matches, true);
+  MapRegistration clean_source(RegistrationOptions(), true, gates.reweigh_keyframe_matches, true);
+  MapRegistration as_asked(RegistrationOptions(), true, gates.reweigh_keyframe_matches, false);
+  ASSERT_EQ(noisy_source.setClouds(noisy_in_own, clean), "");
+  ASSERT_EQ(clean_source.setClouds(clean, noisy_in_own), "");
+  ASSERT_EQ(as_asked.setClouds(noisy_in_own, clean), "");
+  EXPECT_GT(noisy_source.noiseRatio(truth), 2.0);
+  EXPECT_LT(clean_source.noiseRatio(truth.inverse()), 0.5);
+
+  const Refinement reversed = noisy_source.refine(truth, {});
+  const Refinement forward = clean_source.refine(truth.inverse(), {});
+  const Refinement plain = as_asked.refine(truth, {});
+  ASSERT_EQ(reversed.status, Status::kOk) << reversed.message;
+  ASSERT_EQ(forward.status, Status::kOk) << forward.message;
+  ASSERT_EQ(plain.status, Status::kOk) << plain.message;
+  EXPECT_TRUE(reversed.reversed);
+  EXPECT_FALSE(forward.reversed);
+  EXPECT_FALSE(plain.reversed);
+  EXPECT_NE(reversed.message.find("registered the target onto the source"), std::string::npos) << reversed.message;
+  // The same ICP both ways: the two answers are each other's inverse.
+  EXPECT_LT(similarityDifference(reversed.estimate, forward.estimate.inverse()).norm(), 1e-9);
+  EXPECT_LT(test::deg(rotationDistance(reversed.estimate.rotation(), truth.rotation())), 0.5);
+  EXPECT_NEAR(reversed.estimate.scale() / truth.scale(), 1.0, 0.01);
+  // The covariance in the requested direction: the forward one moved by the adjoint ...
+  const Matrix7d ad = similarityAdjoint(reversed.estimate);
+  EXPECT_TRUE(reversed.covariance.isApprox(ad * forward.covariance * ad.transpose(), 1e-6));
+  // ... and of the size the ICP reports when it runs the way it was asked: each block's trace
+  // within 25 % (0.2-0.3 % apart here; a wrong frame would be off by the scale's square, 6.25,
+  // or by the far origin's lever arm).
+  for (const auto& [row, size] : {std::pair{0, 3}, std::pair{3, 3}, std::pair{6, 1}}) {
+    const double a = reversed.covariance.block(row, row, size, size).trace();
+    const double b = plain.covariance.block(row, row, size, size).trace();
+    EXPECT_NEAR(a / b, 1.0, 0.25) << "block at " << row;
+  }
+}
+
 // Two samplings of one synthetic scene (the identity aligns them), registered, and the default
 // gates; and a keyframe estimate from two pairs with a tight covariance, for the gates' tests.
 struct SameScene {

@@ -76,6 +76,9 @@ struct RegistrationReport {
   std::optional<double> keyframe_scale_stddev;      ///< its scale's standard deviation [-]
   std::optional<bool> refinement_kept;              ///< the refined estimate is the result
   std::optional<double> refinement_chi2;            ///< squared Mahalanobis distance refined vs keyframe [-]
+  /// The refinement registered the target onto the source and inverted the result (the source
+  /// map was the noisier one: merge.register_noisier_as_target); absent or false otherwise.
+  std::optional<bool> refinement_reversed;
   std::optional<double> overlap;                    ///< overlap of the aligned maps [-]
   std::vector<KeyframePairReport> keyframe_pairs;   ///< every verified keyframe pair
   std::optional<KeyframeEdge> keyframe_edge;        ///< the result between the anchor keyframes (merge, OK)

@@ -51,6 +51,14 @@ struct Refinement {
   /// The anchors' information was multiplied by this in the step that gave the estimate
   /// (1 = the ICP's own estimate) [-]: MapRegistration::refine().
   double anchor_weight = 1.0;
+  /// The ICP registered the target onto the source and the result was inverted (the source map
+  /// is the noisier one: MapRegistration's noisier_as_target). estimate, covariance, closed_form
+  /// (covariance, information, noise_stddev) and icp (transform, fitness_rmse) are then in the
+  /// requested direction; icp.matches stays in the direction the ICP ran.
+  bool reversed = false;
+  /// How much noisier the source's surfaces are than the target's, in the target's units at the
+  /// initial estimate: the ratio of their thickness (surfaceThickness2(), square-rooted) [-].
+  double noise_ratio = 1.0;
   double ms_icp = 0.0, ms_covariance = 0.0;
 };
 
@@ -66,9 +74,14 @@ class MapRegistration {
    * @param[in] reweigh_anchors when the ICP's block spread says the clouds' own covariance is
    *   f > 1 times too small, weigh the anchors f times up (refine();
    *   MergeGateOptions::reweigh_keyframe_matches)
+   * @param[in] noisier_as_target register the noisier map onto the other: when the source's
+   *   surfaces are thicker than the target's (in common units at the initial estimate), refine()
+   *   runs the ICP from the target onto the source and inverts the result
+   *   (MergeGateOptions::register_noisier_as_target)
    * @throw InputError on invalid options
    */
-  MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors);
+  MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors,
+                  bool noisier_as_target = false);
   ~MapRegistration();
 
   /**
@@ -85,10 +98,17 @@ class MapRegistration {
    * moves the estimate (anchor_weight = f), and the covariance is computed there. With
    * covariance.jackknife_blocks > 0 the covariance then covers the spread of the refinement
    * re-run without each spatial block (jackknife.h; that many more ICP runs).
+   * With noisier_as_target (constructor) and a source whose surfaces are thicker than the
+   * target's, all of this runs from the target onto the source and the result is inverted
+   * (Refinement::reversed).
    * @param[in] initial starting estimate (the keyframe estimate)
    * @param[in] anchors 3D-3D keyframe matches (group = keyframe pair); may be empty
    */
   Refinement refine(const Sim3& initial, const std::vector<PointMatch3>& anchors) const;
+
+  /// How much noisier the source's surfaces are than the target's at the scale of `target_source`
+  /// (Refinement::noise_ratio); 1 when either thickness is unknown.
+  double noiseRatio(const Sim3& target_source) const;
 
   /**
    * @brief Overlap of the aligned maps: the larger of the fraction of (a sample of) the source
@@ -106,8 +126,12 @@ class MapRegistration {
  private:
   // The ICP options with the scale policy.
   IcpOptions icpOptions() const;
-  // refine() before the jackknife.
-  Refinement refineOnce(const Sim3& initial, const std::vector<PointMatch3>& anchors) const;
+  // refine() in one direction: `source` onto `target` (indexed by target_tree).
+  Refinement refineDirected(const Cloud& source, const Cloud& target, const KdTree& target_tree, const Sim3& initial,
+                            const std::vector<PointMatch3>& anchors) const;
+  // refineDirected() before the jackknife.
+  Refinement refineOnce(const Cloud& source, const KdTree& target_tree, const Sim3& initial,
+                        const std::vector<PointMatch3>& anchors) const;
   // The refinement's covariance (closed form with the anchors, covered by the block spread),
   // status and message at refinement->estimate from its ICP correspondences. @return the block
   // spread's information of the clouds and the anchors (similarity_fit.h convention; zero when
@@ -121,7 +145,9 @@ class MapRegistration {
   RegistrationOptions options_;
   bool estimate_scale_;
   bool reweigh_anchors_;
+  bool noisier_as_target_;
   Cloud source_, target_;
+  double source_thickness2_ = 0.0, target_thickness2_ = 0.0;  // surfaceThickness2() [own units²]
   std::unique_ptr<KdTree> target_tree_, source_tree_;
   double target_spacing_ = 0.0, source_spacing_ = 0.0;
   double filter_ms_ = 0.0;

@@ -47,6 +47,8 @@ struct MergeDiagnostics {
   double disagreement_scale = 1.0;  ///< GateVerdict::disagreement_scale [-]
   double block_spread_factor = 1.0;  ///< enlargement of the covariance by the block spread [-]
   double anchor_weight = 1.0;        ///< Refinement::anchor_weight [-]
+  bool refinement_reversed = false;  ///< Refinement::reversed
+  double noise_ratio = 1.0;          ///< Refinement::noise_ratio [-]
   Sim3 initial;                    ///< the keyframe estimate of S_target_source
   Matrix7d keyframe_covariance = Matrix7d::Zero();  ///< its (predictive) covariance (similarity_fit.h)
   /// The keyframe estimate's covariance as the pooled mean's standard error alone (without the

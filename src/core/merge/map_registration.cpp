@@ -1,6 +1,7 @@
 #include "pcr_pro/merge/map_registration.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/LU>
 
 #include <algorithm>
 #include <chrono>
@@ -10,6 +11,7 @@
 #include <numeric>
 #include <sstream>
 
+#include "pcr_pro/geometry/normals.h"
 #include "pcr_pro/registration/filters.h"
 #include "pcr_pro/registration/jackknife.h"
 
@@ -58,6 +60,53 @@ double coveredFraction(const Cloud& points, const Sim3& map, const KdTree& tree,
   return static_cast<double>(inside) / static_cast<double>(total);
 }
 
+// Points whose neighbourhoods measure a cloud's surface thickness (surfaceThickness2()): the
+// median over this many is known to a few per cent.
+constexpr Eigen::Index kThicknessSamples = 2000;
+
+// A source map counts as the noisier one when its surface thickness, as a variance in the
+// target's units, is at least this many times the target's [-]. (Measured below it, the
+// direction's effect comes from the registration's other asymmetries, which cloud is sampled
+// and which is used whole, not from the noise: see MergeGateOptions::register_noisier_as_target.)
+constexpr double kNoisierVarianceRatio = 2.0;
+
+// The anchors as matches of the inverse similarity (target map onto source map): the two points
+// exchanged, and the residual covariance (target units, at `at`) moved into source units:
+// r' = S^-1(target) - source = -R^T r / s.
+std::vector<PointMatch3> reversedAnchors(const std::vector<PointMatch3>& anchors, const Sim3& at) {
+  std::vector<PointMatch3> out = anchors;
+  const Eigen::Matrix3d r = at.rotation();
+  const double s2 = at.scale() * at.scale();
+  for (PointMatch3& m : out) {
+    std::swap(m.source, m.target);
+    m.covariance = r.transpose() * m.covariance * r / s2;
+  }
+  return out;
+}
+
+// A refinement of S_source_target turned into one of S_target_source (Refinement::reversed).
+void invertRefinement(Refinement* r) {
+  const Sim3 forward = r->estimate.inverse();
+  // Left perturbations: the covariance of S^-1 is Ad(S^-1) C Ad(S^-1)^T (similarity_fit.h).
+  const Matrix7d ad = similarityAdjoint(forward);
+  r->estimate = forward;
+  r->covariance = ad * r->covariance * ad.transpose();
+  r->covariance = 0.5 * (r->covariance + r->covariance.transpose()).eval();
+  r->icp.transform = r->icp.transform.inverse();
+  // Lengths in the ICP's target units (the source map's) into the target map's.
+  r->icp.fitness_rmse *= forward.scale();
+  r->closed_form.noise_stddev *= forward.scale();
+  const Matrix6d ad6 = ad.topLeftCorner<6, 6>();
+  r->closed_form.covariance = ad6 * r->closed_form.covariance * ad6.transpose();
+  const Eigen::FullPivLU<Matrix6d> lu(ad6);
+  if (lu.isInvertible()) {
+    const Matrix6d inv = lu.inverse();
+    r->closed_form.information = inv.transpose() * r->closed_form.information * inv;
+  }
+  if (r->closed_form.with_scale) r->closed_form.covariance7 = ad * r->closed_form.covariance7 * ad.transpose();
+  r->reversed = true;
+}
+
 }  // namespace
 
 OverlapRegion overlapRegion(const std::vector<PointMatch3>& matches) {
@@ -69,8 +118,12 @@ OverlapRegion overlapRegion(const std::vector<PointMatch3>& matches) {
   return region;
 }
 
-MapRegistration::MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors)
-    : options_(options), estimate_scale_(estimate_scale), reweigh_anchors_(reweigh_anchors) {
+MapRegistration::MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors,
+                                 bool noisier_as_target)
+    : options_(options),
+      estimate_scale_(estimate_scale),
+      reweigh_anchors_(reweigh_anchors),
+      noisier_as_target_(noisier_as_target) {
   validate(options_);
 }
 
@@ -91,6 +144,11 @@ std::string MapRegistration::setClouds(const Cloud& source, const Cloud& target)
   source_tree_ = std::make_unique<KdTree>(source_);
   target_spacing_ = medianSpacing(*target_tree_);
   source_spacing_ = medianSpacing(*source_tree_);
+  if (noisier_as_target_) {
+    const int k = options_.icp.normal_neighbors;
+    target_thickness2_ = surfaceThickness2(*target_tree_, k, kThicknessSamples);
+    source_thickness2_ = surfaceThickness2(*source_tree_, k, kThicknessSamples);
+  }
   return "";
 }
 
@@ -107,13 +165,39 @@ double MapRegistration::overlap(const Sim3& s, double factor, const OverlapRegio
   return std::max(source_part, target_part);
 }
 
+double MapRegistration::noiseRatio(const Sim3& target_source) const {
+  if (!(source_thickness2_ > 0.0) || !(target_thickness2_ > 0.0)) return 1.0;
+  const double ratio = target_source.scale() * std::sqrt(source_thickness2_ / target_thickness2_);
+  return std::isfinite(ratio) ? ratio : 1.0;
+}
+
 Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
-  Refinement out = refineOnce(initial, anchors);
+  if (!target_tree_) throw InputError("MapRegistration::refine: setClouds() first");
+  const double ratio = noiseRatio(initial);
+  if (!noisier_as_target_ || !(ratio * ratio >= kNoisierVarianceRatio)) {
+    Refinement out = refineDirected(source_, target_, *target_tree_, initial, anchors);
+    out.noise_ratio = ratio;
+    return out;
+  }
+  Refinement out = refineDirected(target_, source_, *source_tree_, initial.inverse(), reversedAnchors(anchors, initial));
+  invertRefinement(&out);
+  out.noise_ratio = ratio;
+  std::ostringstream msg;
+  msg.precision(3);
+  msg << "registered the target onto the source (the source's surfaces are " << ratio
+      << " times as thick): " << out.message;
+  out.message = msg.str();
+  return out;
+}
+
+Refinement MapRegistration::refineDirected(const Cloud& source, const Cloud& target, const KdTree& target_tree,
+                                           const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
+  Refinement out = refineOnce(source, target_tree, initial, anchors);
   const int blocks = options_.covariance.jackknife_blocks;
   if (blocks == 0 || out.status != Status::kOk) return out;
   const auto t = Clock::now();
   const JackknifeSpread spread =
-      jackknifeCovariance(source_, target_, out.estimate, icpOptions(), blocks, anchors.empty() ? nullptr : &anchors);
+      jackknifeCovariance(source, target, out.estimate, icpOptions(), blocks, anchors.empty() ? nullptr : &anchors);
   if (spread.ok) out.covariance = coveringCovariance(out.covariance, spread.covariance);
   out.message += "; " + spread.message;
   out.ms_covariance += msSince(t);
@@ -126,11 +210,11 @@ IcpOptions MapRegistration::icpOptions() const {
   return icp_options;
 }
 
-Refinement MapRegistration::refineOnce(const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
+Refinement MapRegistration::refineOnce(const Cloud& source, const KdTree& target_tree, const Sim3& initial,
+                                       const std::vector<PointMatch3>& anchors) const {
   Refinement out;
-  if (!target_tree_) throw InputError("MapRegistration::refine: setClouds() first");
   const auto t = Clock::now();
-  out.icp = alignIcp(source_, *target_tree_, initial, icpOptions(), &anchors);
+  out.icp = alignIcp(source, target_tree, initial, icpOptions(), &anchors);
   out.ms_icp = msSince(t);
   out.estimate = out.icp.transform;
   out.status = out.icp.status;

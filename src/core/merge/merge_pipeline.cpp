@@ -156,6 +156,9 @@ void recordRefinement(const Refinement& refinement, RegistrationReport* rep, Mer
   }
   diag->block_spread_factor = refinement.block_spread_factor;
   diag->anchor_weight = refinement.anchor_weight;
+  diag->refinement_reversed = refinement.reversed;
+  diag->noise_ratio = refinement.noise_ratio;
+  rep->refinement_reversed = refinement.reversed;
   diag->refinement_status = refinement.status;
   diag->refined = refinement.estimate;
   diag->refined_covariance = refinement.covariance;
@@ -349,7 +352,7 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
 
   // 3. Refinement on the map clouds.
   MapRegistration registration(options_.registration, options_.merge.refine_scale,
-                               options_.merge.reweigh_keyframe_matches);
+                               options_.merge.reweigh_keyframe_matches, options_.merge.register_noisier_as_target);
   const std::string cloud_problem = registration.setClouds(source.cloud, target.cloud);
   rep.timings.filters = registration.filterMs();
   if (!cloud_problem.empty()) return finish(Status::kInvalidInput, cloud_problem);
