@@ -47,4 +47,8 @@ Cloud estimateNormalsAt(const KdTree& tree, const std::vector<Eigen::Index>& ind
  */
 double surfaceThickness2(const KdTree& tree, int k, Eigen::Index samples);
 
+/// Points surfaceThickness2() measures for the ICP's noise correction and the merge's choice of
+/// direction, which compare clouds by it: the median over this many is known to a few per cent.
+inline constexpr Eigen::Index kThicknessSamples = 2000;
+
 }  // namespace pcr_pro

@@ -60,10 +60,6 @@ double coveredFraction(const Cloud& points, const Sim3& map, const KdTree& tree,
   return static_cast<double>(inside) / static_cast<double>(total);
 }
 
-// Points whose neighbourhoods measure a cloud's surface thickness (surfaceThickness2()): the
-// median over this many is known to a few per cent.
-constexpr Eigen::Index kThicknessSamples = 2000;
-
 // A source map counts as the noisier one when its surface thickness, as a variance in the
 // target's units, is at least this many times the target's [-]. (Measured below it, the
 // direction's effect comes from the registration's other asymmetries, which cloud is sampled

@@ -681,9 +681,6 @@ struct LevelSource {
   double thickness2 = 0.0;  // surfaceThickness2() of the level's source [source units²]
 };
 
-// Points sampled to measure a cloud's surface thickness (its median is then known to a few %).
-constexpr Eigen::Index kThicknessSamples = 2000;
-
 LevelSource levelSource(const Cloud& source, const LevelEnv& env) {
   const IcpOptions& o = env.o;
   const bool plane = o.error_metric == ErrorMetric::kPointToPlane;
