@@ -89,7 +89,7 @@ PeerRun icpFromTruth(const CaseInput& in, const Matrix7d& truth_cov, const Eigen
   options.icp.local_noise = local_noise;
   options.covariance.jackknife_blocks = jackknife_blocks;
   const MergeGateOptions gates;
-  MapRegistration registration(options, true, gates.reweigh_keyframe_matches, gates.register_noisier_as_target);
+  MapRegistration registration(options, true, gates.reweigh_keyframe_matches);
   if (!registration.setClouds(in.source->cloud, in.target->cloud).empty()) return run;
   const Refinement r = registration.refine(in.truth, {});
   run.ms = nowMs() - t0;

@@ -343,7 +343,7 @@ Row outlierRun(const BundlePair& bp, const MapKeyframe& kf_s, const MapKeyframe&
     r.ms = nowMs() - t0;
   } else {
     MapRegistration registration(defaults.registration, defaults.merge.refine_scale,
-                                 defaults.merge.reweigh_keyframe_matches, defaults.merge.register_noisier_as_target);
+                                 defaults.merge.reweigh_keyframe_matches);
     registration.setClouds(source.cloud, target.cloud);
     const Refinement refined = registration.refine(guess.estimate, guess.matches);
     RegistrationReport rep;

@@ -733,7 +733,7 @@ TEST(MergeGates, AlignedMapsThatDoNotOverlapAreNoOverlap) {
   EXPECT_LT(v.overlap, 0.01);
 }
 
-// merge.register_noisier_as_target: with the source the noisier map, the refinement registers
+// icp.sampling.register_noisier_as_target: with the source the noisier map, the refinement registers
 // the target onto the source and inverts the result, so both orders of the same two maps run the
 // same ICP: a -> b is exactly the inverse of b -> a, and the covariance, moved by the adjoint,
 // matches the one the ICP would report the other way round to within what the two directions'
@@ -749,10 +749,12 @@ TEST(MapRegistration, TheNoisierMapIsRegisteredOntoTheOtherAndTheResultInverted)
                    Eigen::Vector3d(40.0, -25.0, 10.0));  // S_clean_noisy
   const Cloud noisy_in_own = truth.inverse().apply(noisy);  // the noisy map in its own frame
   const MergeGateOptions gates;
-  ASSERT_TRUE(gates.register_noisier_as_target);
-  MapRegistration noisy_source(RegistrationOptions(), true, gates.reweigh_keyframe_matches, true);
-  MapRegistration clean_source(RegistrationOptions(), true, gates.reweigh_keyframe_matches, true);
-  MapRegistration as_asked(RegistrationOptions(), true, gates.reweigh_keyframe_matches, false);
+  ASSERT_TRUE(RegistrationOptions().icp.register_noisier_as_target);
+  RegistrationOptions keep_direction;
+  keep_direction.icp.register_noisier_as_target = false;
+  MapRegistration noisy_source(RegistrationOptions(), true, gates.reweigh_keyframe_matches);
+  MapRegistration clean_source(RegistrationOptions(), true, gates.reweigh_keyframe_matches);
+  MapRegistration as_asked(keep_direction, true, gates.reweigh_keyframe_matches);
   ASSERT_EQ(noisy_source.setClouds(noisy_in_own, clean), "");
   ASSERT_EQ(clean_source.setClouds(clean, noisy_in_own), "");
   ASSERT_EQ(as_asked.setClouds(noisy_in_own, clean), "");
@@ -784,6 +786,56 @@ TEST(MapRegistration, TheNoisierMapIsRegisteredOntoTheOtherAndTheResultInverted)
     const double b = plain.covariance.block(row, row, size, size).trace();
     EXPECT_NEAR(a / b, 1.0, 0.25) << "block at " << row;
   }
+}
+
+// The same for pcr_pro_icp's path (registerClouds(), no keyframes): the noisier cloud as source
+// is registered the other way round, the report says so (YAML `reversed: true`), a -> b is the
+// exact inverse of b -> a, and the 6x6 covariance, information and scale_stddev, moved into the
+// requested direction, are of the size a run kept in that direction reports.
+TEST(MapRegistration, PcrProIcpAlsoRegistersTheNoisierCloudOntoTheOther) {
+  std::mt19937 rng(21);
+  const Cloud clean = test::syntheticScene(4000, 2.0, rng);
+  Cloud noisy = test::syntheticScene(4000, 2.0, rng);
+  std::normal_distribution<double> n(0.0, 0.02);
+  for (Eigen::Index i = 0; i < noisy.cols(); ++i) noisy.col(i) += Eigen::Vector3d(n(rng), n(rng), n(rng));
+  const Sim3 truth(2.5, Eigen::AngleAxisd(test::rad(30.0), Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix(),
+                   Eigen::Vector3d(40.0, -25.0, 10.0));  // S_clean_noisy
+  const Cloud noisy_in_own = truth.inverse().apply(noisy);
+  RegistrationOptions o;
+  o.icp.estimate_scale = true;
+  ASSERT_TRUE(o.icp.register_noisier_as_target);
+  RegistrationOptions keep_direction = o;
+  keep_direction.icp.register_noisier_as_target = false;
+
+  const RegistrationReport reversed = registerClouds(noisy_in_own, clean, truth, o);
+  const RegistrationReport forward = registerClouds(clean, noisy_in_own, truth.inverse(), o);
+  const RegistrationReport plain = registerClouds(noisy_in_own, clean, truth, keep_direction);
+  for (const RegistrationReport* r : {&reversed, &forward, &plain}) {
+    ASSERT_EQ(r->status, Status::kOk) << r->message;
+    ASSERT_TRUE(r->transform && r->covariance && r->information && r->scale_stddev && r->fitness_rmse);
+    EXPECT_TRUE(r->covariance->allFinite() && r->information->allFinite());
+  }
+  EXPECT_TRUE(reversed.reversed.value_or(false));
+  EXPECT_FALSE(forward.reversed.value_or(false));
+  EXPECT_FALSE(plain.reversed.value_or(false));
+  EXPECT_NE(toYaml(reversed).find("\nreversed: true\n"), std::string::npos);
+  EXPECT_EQ(toYaml(plain).find("reversed"), std::string::npos);
+  EXPECT_NE(reversed.message.find("registered the target onto the source"), std::string::npos) << reversed.message;
+  EXPECT_LT(similarityDifference(*reversed.transform, forward.transform->inverse()).norm(), 1e-9);
+  EXPECT_LT(test::deg(rotationDistance(reversed.transform->rotation(), truth.rotation())), 0.5);
+  EXPECT_NEAR(reversed.transform->scale() / truth.scale(), 1.0, 0.01);
+  // The information is the covariance's inverse.
+  EXPECT_TRUE((*reversed.information * *reversed.covariance).isApprox(Matrix6d::Identity(), 1e-6));
+  // Each block's trace within 25 % of the run kept in the asked direction (a wrong frame: off by
+  // the scale's square, 6.25, or the far origin's lever arm), and the scale's σ, and the
+  // residuals in the target's units.
+  for (const auto& [row, size] : {std::pair{0, 3}, std::pair{3, 3}}) {
+    const double a = reversed.covariance->block(row, row, size, size).trace();
+    const double b = plain.covariance->block(row, row, size, size).trace();
+    EXPECT_NEAR(a / b, 1.0, 0.25) << "block at " << row;
+  }
+  EXPECT_NEAR(*reversed.scale_stddev / *plain.scale_stddev, 1.0, 0.25);
+  EXPECT_NEAR(*reversed.fitness_rmse / *plain.fitness_rmse, 1.0, 0.5);
 }
 
 // Two samplings of one synthetic scene (the identity aligns them), registered, and the default

@@ -51,4 +51,19 @@ double surfaceThickness2(const KdTree& tree, int k, Eigen::Index samples);
 /// direction, which compare clouds by it: the median over this many is known to a few per cent.
 inline constexpr Eigen::Index kThicknessSamples = 2000;
 
+/// A source cloud counts as the noisier one when its surface thickness, as a variance in the
+/// target's units, is at least this many times the target's [-] (noiseRatio()). Below it the
+/// registration's other asymmetries (which cloud is sampled, which is used whole) outweigh the
+/// noise: see IcpOptions::register_noisier_as_target.
+inline constexpr double kNoisierVarianceRatio = 2.0;
+
+/**
+ * @brief How many times noisier the source is than the target, as a standard deviation in the
+ * target's units: scale * sqrt(source_thickness2 / target_thickness2).
+ * @param[in] scale the source-to-target scale the clouds are compared at [-]
+ * @param[in] source_thickness2, target_thickness2 surfaceThickness2() of each cloud in its own units
+ * @return the ratio; 1 when a thickness is not positive or the ratio is not finite
+ */
+double noiseRatio(double scale, double source_thickness2, double target_thickness2);
+
 }  // namespace pcr_pro

@@ -70,6 +70,9 @@ struct RegistrationReport {
   std::optional<bool> scale_difference_detected;
   std::optional<double> detected_scale_ratio;
   int icp_iterations = 0;
+  /// pcr_pro_icp (registerClouds()): the target cloud was registered onto the (noisier) source
+  /// and the result inverted (icp.sampling.register_noisier_as_target); absent or false otherwise.
+  std::optional<bool> reversed;
   // --- the merge's keyframe estimate and the refinement's verdict (pcr_pro_merge, node)
   std::optional<Sim3> keyframe_transform;           ///< keyframe-only S_target_source
   std::optional<Matrix6d> keyframe_covariance;      ///< its 6x6 covariance (same convention)
@@ -77,7 +80,7 @@ struct RegistrationReport {
   std::optional<bool> refinement_kept;              ///< the refined estimate is the result
   std::optional<double> refinement_chi2;            ///< squared Mahalanobis distance refined vs keyframe [-]
   /// The refinement registered the target onto the source and inverted the result (the source
-  /// map was the noisier one: merge.register_noisier_as_target); absent or false otherwise.
+  /// map was the noisier one: icp.sampling.register_noisier_as_target); absent or false otherwise.
   std::optional<bool> refinement_reversed;
   std::optional<double> overlap;                    ///< overlap of the aligned maps [-]
   std::vector<KeyframePairReport> keyframe_pairs;   ///< every verified keyframe pair

@@ -52,13 +52,13 @@ struct Refinement {
   /// (1 = the ICP's own estimate) [-]: MapRegistration::refine().
   double anchor_weight = 1.0;
   /// The ICP registered the target onto the source and the result was inverted (the source map
-  /// is clearly the noisier one: MapRegistration's noisier_as_target). estimate, covariance, closed_form
+  /// is clearly the noisier one: IcpOptions::register_noisier_as_target). estimate, covariance, closed_form
   /// (covariance, information, noise_stddev) and icp (transform, fitness_rmse) are then in the
   /// requested direction; icp.matches stays in the direction the ICP ran.
   bool reversed = false;
   /// How much noisier the source's surfaces are than the target's, in the target's units at the
   /// initial estimate: the ratio of their thickness (surfaceThickness2(), square-rooted) [-]; 1
-  /// when not measured (noisier_as_target off).
+  /// when not measured (IcpOptions::register_noisier_as_target off).
   double noise_ratio = 1.0;
   double ms_icp = 0.0, ms_covariance = 0.0;
 };
@@ -75,14 +75,11 @@ class MapRegistration {
    * @param[in] reweigh_anchors when the ICP's block spread says the clouds' own covariance is
    *   f > 1 times too small, weigh the anchors f times up (refine();
    *   MergeGateOptions::reweigh_keyframe_matches)
-   * @param[in] noisier_as_target register the clearly noisier map onto the other: when the
-   *   source's surface thickness, as a variance in target units at the initial estimate, is at
-   *   least twice the target's, refine() runs the ICP from the target onto the source and
-   *   inverts the result (MergeGateOptions::register_noisier_as_target)
+   * The clearly noisier map is registered onto the other when options.icp's
+   * register_noisier_as_target is on (refine()).
    * @throw InputError on invalid options
    */
-  MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors,
-                  bool noisier_as_target = false);
+  MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors);
   ~MapRegistration();
 
   /**
@@ -99,7 +96,7 @@ class MapRegistration {
    * moves the estimate (anchor_weight = f), and the covariance is computed there. With
    * covariance.jackknife_blocks > 0 the covariance then covers the spread of the refinement
    * re-run without each spatial block (jackknife.h; that many more ICP runs).
-   * With noisier_as_target (constructor) and a source at least twice as noisy (noiseRatio()
+   * With icp.register_noisier_as_target (options) and a source at least twice as noisy (noiseRatio()
    * squared >= 2), all of this runs from the target onto the source and the result is inverted
    * (Refinement::reversed).
    * @param[in] initial starting estimate (the keyframe estimate)
@@ -146,7 +143,6 @@ class MapRegistration {
   RegistrationOptions options_;
   bool estimate_scale_;
   bool reweigh_anchors_;
-  bool noisier_as_target_;
   Cloud source_, target_;
   double source_thickness2_ = 0.0, target_thickness2_ = 0.0;  // surfaceThickness2() [own units²]
   std::unique_ptr<KdTree> target_tree_, source_tree_;

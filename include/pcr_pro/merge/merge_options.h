@@ -32,21 +32,6 @@ struct MergeGateOptions {
   /// of 72 merges within the floors instead of 58, on its held-out seeds 137 of 144 instead of
   /// 136; costs the step and a second covariance (about 30 ms on the 70k-point merge).
   bool reweigh_keyframe_matches = true;
-  /// The refinement registers the clearly noisier map onto the other: when the source map's
-  /// surface thickness (surfaceThickness2(), a variance, in target units at the keyframe estimate)
-  /// is at least twice the target's, the ICP runs from the target onto the source and its result
-  /// and covariance are inverted (Refinement::reversed), so that a -> b and b -> a run the same
-  /// ICP. The refinement's source is a max_source_points sample and its target is used whole;
-  /// the noisier map's planes then come from all of its points. On the bench's unequal-noise
-  /// worlds (source at inverse-depth noise 0.03, target 0.01, 2.5 % drift; thickness ratios
-  /// 1.43-2.0 as standard deviations) the b -> a merges within the floors went from 46 to 49 of
-  /// 54, the refinement alone from the exact truth from 57 to 72 of 108, and a -> b inverted
-  /// against b -> a from a median 0.19 deg / 0.19 % apart to 0.03 deg / 0.02 %. Below the
-  /// margin the direction is kept as asked: swapped on every ratio above 1, the held-out worlds
-  /// of equal noise (ratios 0.88-1.17) went from 143 to 137 of 144, all six losses at inverse-
-  /// depth noise 0.03, where which map is sampled and which is used whole outweighs a 10-17 %
-  /// difference in thickness.
-  bool register_noisier_as_target = true;
   /// A refinement kept is combined with the keyframe estimate instead of replacing it: the
   /// information-weighted mean of the two, each given the between-pair covariance T on top of
   /// its own (KeyframeEstimate::between: how much the keyframe pairs' similarities differ). It

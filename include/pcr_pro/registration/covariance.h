@@ -161,6 +161,15 @@ Matrix7d blockDiagonalAt(const Matrix7d& covariance, const Eigen::Vector3d& cent
  */
 double coverCovarianceResult(const Matrix7d& spread, const Sim3& transform, bool with_scale, CovarianceResult* result);
 
+/**
+ * @brief A covariance result of a registration run the other way round, of S = forward⁻¹
+ * (the target registered onto the source), turned into one of `forward` = S_target_source:
+ * covariance, covariance7 and scale_stddev moved by the similarity adjoint (left perturbations,
+ * similarity_fit.h; the scale's uncertainty enters the translation's), information with them,
+ * noise_stddev into the target's units.
+ */
+void invertCovarianceResult(const Sim3& forward, CovarianceResult* result);
+
 /// @return the 7x7 covariance of δ with the log scale as 7th variable, from a CovarianceResult
 Matrix7d logScaleCovariance(const CovarianceResult& result, double scale);
 

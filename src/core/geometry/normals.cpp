@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
+#include <cmath>
 #include <vector>
 
 namespace pcr_pro {
@@ -86,6 +87,12 @@ double surfaceThickness2(const KdTree& tree, int k, Eigen::Index samples) {
   const auto mid = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
   std::nth_element(values.begin(), mid, values.end());
   return *mid;
+}
+
+double noiseRatio(double scale, double source_thickness2, double target_thickness2) {
+  if (!(source_thickness2 > 0.0) || !(target_thickness2 > 0.0)) return 1.0;
+  const double ratio = scale * std::sqrt(source_thickness2 / target_thickness2);
+  return std::isfinite(ratio) ? ratio : 1.0;
 }
 
 }  // namespace pcr_pro

@@ -56,6 +56,7 @@ std::string toYaml(const RegistrationReport& r) {
   if (r.condition_number) os << "condition_number: " << *r.condition_number << "\n";
   if (r.noise_stddev) os << "noise_stddev: " << *r.noise_stddev << "\n";
   if (r.icp_iterations > 0) os << "icp_iterations: " << r.icp_iterations << "\n";
+  if (r.reversed && *r.reversed) os << "reversed: true\n";
   if (r.overlap) os << "overlap: " << *r.overlap << "\n";
   if (r.keyframe_transform) {
     const Eigen::Quaterniond q = r.keyframe_transform->quaternion();

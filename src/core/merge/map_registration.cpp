@@ -1,7 +1,6 @@
 #include "pcr_pro/merge/map_registration.h"
 
 #include <Eigen/Cholesky>
-#include <Eigen/LU>
 
 #include <algorithm>
 #include <chrono>
@@ -60,12 +59,6 @@ double coveredFraction(const Cloud& points, const Sim3& map, const KdTree& tree,
   return static_cast<double>(inside) / static_cast<double>(total);
 }
 
-// A source map counts as the noisier one when its surface thickness, as a variance in the
-// target's units, is at least this many times the target's [-]. (Measured below it, the
-// direction's effect comes from the registration's other asymmetries, which cloud is sampled
-// and which is used whole, not from the noise: see MergeGateOptions::register_noisier_as_target.)
-constexpr double kNoisierVarianceRatio = 2.0;
-
 // The anchors as matches of the inverse similarity (target map onto source map): the two points
 // exchanged, and the residual covariance (target units, at `at`) moved into source units:
 // r' = S^-1(target) - source = -R^T r / s.
@@ -91,15 +84,7 @@ void invertRefinement(Refinement* r) {
   r->icp.transform = r->icp.transform.inverse();
   // Lengths in the ICP's target units (the source map's) into the target map's.
   r->icp.fitness_rmse *= forward.scale();
-  r->closed_form.noise_stddev *= forward.scale();
-  const Matrix6d ad6 = ad.topLeftCorner<6, 6>();
-  r->closed_form.covariance = ad6 * r->closed_form.covariance * ad6.transpose();
-  const Eigen::FullPivLU<Matrix6d> lu(ad6);
-  if (lu.isInvertible()) {
-    const Matrix6d inv = lu.inverse();
-    r->closed_form.information = inv.transpose() * r->closed_form.information * inv;
-  }
-  if (r->closed_form.with_scale) r->closed_form.covariance7 = ad * r->closed_form.covariance7 * ad.transpose();
+  invertCovarianceResult(forward, &r->closed_form);
   r->reversed = true;
 }
 
@@ -114,12 +99,8 @@ OverlapRegion overlapRegion(const std::vector<PointMatch3>& matches) {
   return region;
 }
 
-MapRegistration::MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors,
-                                 bool noisier_as_target)
-    : options_(options),
-      estimate_scale_(estimate_scale),
-      reweigh_anchors_(reweigh_anchors),
-      noisier_as_target_(noisier_as_target) {
+MapRegistration::MapRegistration(const RegistrationOptions& options, bool estimate_scale, bool reweigh_anchors)
+    : options_(options), estimate_scale_(estimate_scale), reweigh_anchors_(reweigh_anchors) {
   validate(options_);
 }
 
@@ -140,7 +121,7 @@ std::string MapRegistration::setClouds(const Cloud& source, const Cloud& target)
   source_tree_ = std::make_unique<KdTree>(source_);
   target_spacing_ = medianSpacing(*target_tree_);
   source_spacing_ = medianSpacing(*source_tree_);
-  if (noisier_as_target_) {
+  if (options_.icp.register_noisier_as_target) {
     const int k = options_.icp.normal_neighbors;
     target_thickness2_ = surfaceThickness2(*target_tree_, k, kThicknessSamples);
     source_thickness2_ = surfaceThickness2(*source_tree_, k, kThicknessSamples);
@@ -162,15 +143,13 @@ double MapRegistration::overlap(const Sim3& s, double factor, const OverlapRegio
 }
 
 double MapRegistration::noiseRatio(const Sim3& target_source) const {
-  if (!(source_thickness2_ > 0.0) || !(target_thickness2_ > 0.0)) return 1.0;
-  const double ratio = target_source.scale() * std::sqrt(source_thickness2_ / target_thickness2_);
-  return std::isfinite(ratio) ? ratio : 1.0;
+  return pcr_pro::noiseRatio(target_source.scale(), source_thickness2_, target_thickness2_);
 }
 
 Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
   if (!target_tree_) throw InputError("MapRegistration::refine: setClouds() first");
   const double ratio = noiseRatio(initial);
-  if (!noisier_as_target_ || !(ratio * ratio >= kNoisierVarianceRatio)) {
+  if (!options_.icp.register_noisier_as_target || !(ratio * ratio >= kNoisierVarianceRatio)) {
     Refinement out = refineDirected(source_, target_, *target_tree_, initial, anchors);
     out.noise_ratio = ratio;
     return out;

@@ -18,9 +18,6 @@ const ParamSchema<MergeGateOptions>& paramSchema<MergeGateOptions>() {
       {"reweigh_keyframe_matches", &O::reweigh_keyframe_matches, R::any(), "",
        "one Gauss-Newton step at the ICP's final correspondences with the keyframe matches weighed up by its block "
        "spread factor (how many times the clouds' own covariance is too small)"},
-      {"register_noisier_as_target", &O::register_noisier_as_target, R::any(), "",
-       "when the source map's surface thickness (a variance, in target units) is at least twice the target's, "
-       "the refinement registers the target onto the source and inverts the result and its covariance"},
       {"combine_with_keyframe_estimate", &O::combine_with_keyframe_estimate, R::any(), "",
        "a refinement kept is combined with the keyframe estimate (information-weighted mean, each with the "
        "between-pair covariance added to its own) instead of replacing it; helps on noisy drifting semi-dense maps, "

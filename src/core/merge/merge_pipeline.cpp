@@ -352,7 +352,7 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
 
   // 3. Refinement on the map clouds.
   MapRegistration registration(options_.registration, options_.merge.refine_scale,
-                               options_.merge.reweigh_keyframe_matches, options_.merge.register_noisier_as_target);
+                               options_.merge.reweigh_keyframe_matches);
   const std::string cloud_problem = registration.setClouds(source.cloud, target.cloud);
   rep.timings.filters = registration.filterMs();
   if (!cloud_problem.empty()) return finish(Status::kInvalidInput, cloud_problem);

@@ -1,7 +1,10 @@
 #include "pcr_pro/registration/cloud_registration.h"
 
 #include <chrono>
+#include <memory>
+#include <sstream>
 
+#include "pcr_pro/geometry/normals.h"
 #include "pcr_pro/registration/covariance.h"
 #include "pcr_pro/registration/jackknife.h"
 #include "pcr_pro/registration/filters.h"
@@ -60,15 +63,45 @@ RegistrationReport registerClouds(const Cloud& source, const Cloud& target, cons
                  detection.target.centroid - detection.ratio * detection.source.centroid);
   }
 
+  // Which way the ICP runs (IcpOptions::register_noisier_as_target): a source at least twice as
+  // noisy (thickness variance, in target units at the start's scale) becomes the ICP's target.
   t = std::chrono::steady_clock::now();
-  const IcpResult icp = target_tree ? alignIcp(src, *target_tree, start, options.icp) : alignIcp(src, tgt, start, options.icp);
+  std::unique_ptr<KdTree> own_target_tree, source_tree;
+  const KdTree* tgt_tree = target_tree;
+  double ratio = 1.0;
+  if (options.icp.register_noisier_as_target) {
+    if (!tgt_tree) {
+      own_target_tree = std::make_unique<KdTree>(tgt);
+      tgt_tree = own_target_tree.get();
+    }
+    source_tree = std::make_unique<KdTree>(src);
+    const int k = options.icp.normal_neighbors;
+    ratio = noiseRatio(start.scale(), surfaceThickness2(*source_tree, k, kThicknessSamples),
+                       surfaceThickness2(*tgt_tree, k, kThicknessSamples));
+  }
+  const bool reversed = options.icp.register_noisier_as_target && ratio * ratio >= kNoisierVarianceRatio;
+  const Cloud& moving = reversed ? tgt : src;
+  const Cloud& fixed = reversed ? src : tgt;
+  const IcpResult icp = reversed   ? alignIcp(tgt, *source_tree, start.inverse(), options.icp)
+                        : tgt_tree ? alignIcp(src, *tgt_tree, start, options.icp)
+                                   : alignIcp(src, tgt, start, options.icp);
   report.timings.icp = msSince(t);
-  report.transform = icp.transform;
+  // The result as asked, S_target_source; lengths in the target's units.
+  const Sim3 transform = reversed ? icp.transform.inverse() : icp.transform;
+  report.transform = transform;
   report.icp_iterations = icp.iterations;
   report.correspondences = icp.correspondences;
-  report.fitness_rmse = icp.fitness_rmse;
+  report.fitness_rmse = reversed ? icp.fitness_rmse * transform.scale() : icp.fitness_rmse;
   report.status = icp.status;
   report.message = icp.message;
+  if (reversed) {
+    report.reversed = true;
+    std::ostringstream msg;
+    msg.precision(3);
+    msg << "registered the target onto the source (the source's surfaces are " << ratio << " times as thick): "
+        << icp.message;
+    report.message = msg.str();
+  }
   if (icp.status == Status::kOk) {
     t = std::chrono::steady_clock::now();
     CovarianceResult cov = computeIcpCovariance(icp.matches, icp.transform, options.icp.error_metric,
@@ -76,9 +109,12 @@ RegistrationReport registerClouds(const Cloud& source, const Cloud& target, cons
     std::string jackknife;
     if (cov.status == Status::kOk && options.covariance.jackknife_blocks > 0) {
       const JackknifeSpread spread =
-          jackknifeCovariance(src, tgt, icp.transform, options.icp, options.covariance.jackknife_blocks);
+          jackknifeCovariance(moving, fixed, icp.transform, options.icp, options.covariance.jackknife_blocks);
       if (spread.ok) coverCovarianceResult(spread.covariance, icp.transform, options.icp.estimate_scale, &cov);
       jackknife = "; " + spread.message;
+    }
+    if (reversed && (cov.status == Status::kOk || cov.status == Status::kDegenerate)) {
+      invertCovarianceResult(transform, &cov);
     }
     report.timings.covariance = msSince(t);
     if (cov.status == Status::kOk || cov.status == Status::kDegenerate) {

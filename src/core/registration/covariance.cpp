@@ -543,6 +543,31 @@ double coverCovarianceResult(const Matrix7d& spread, const Sim3& transform, bool
   return factor;
 }
 
+void invertCovarianceResult(const Sim3& forward, CovarianceResult* res) {
+  // The result is of S = forward^-1; with left perturbations (similarity_fit.h) the covariance of
+  // S^-1 is Ad(S^-1) C Ad(S^-1)^T. The log scale's column of the adjoint carries the translation,
+  // so the scale's uncertainty enters the inverted translation's.
+  const Matrix7d ad = similarityAdjoint(forward);
+  Matrix7d c = ad * logScaleCovariance(*res, forward.inverse().scale()) * ad.transpose();
+  c = 0.5 * (c + c.transpose()).eval();
+  const Matrix6d before = res->information;
+  res->covariance = c.topLeftCorner<6, 6>();
+  if (res->status == Status::kOk) {
+    res->information = res->covariance.ldlt().solve(Matrix6d::Identity());
+    res->information = 0.5 * (res->information + res->information.transpose()).eval();
+  } else {
+    // Zero along the unobservable directions, which the congruence keeps (the scale's cross
+    // terms left out: the pose marginal of a degenerate result is a bound, not an estimate).
+    const Eigen::FullPivLU<Matrix6d> lu(ad.topLeftCorner<6, 6>());
+    if (lu.isInvertible()) {
+      const Matrix6d inv = lu.inverse();
+      res->information = inv.transpose() * before * inv;
+    }
+  }
+  setCovariance7(c, forward, res->with_scale, res);
+  res->noise_stddev *= forward.scale();
+}
+
 CovarianceResult computeIcpCovariance(const Correspondences& matches, const Sim3& transform, ErrorMetric metric,
                                       bool with_scale, const CovarianceOptions& o) {
   validate(o);

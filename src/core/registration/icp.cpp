@@ -531,6 +531,10 @@ const ParamSchema<IcpOptions>& paramSchema<IcpOptions>() {
       {"sampling.coarse_source_points", &O::coarse_source_points, R::atLeast(0), "points",
        "coarse-to-fine: iterate first on this many source points, then 4x as many, ... (10x looser stop check, scale "
        "kept), then on the whole sample; 0 = one level"},
+      {"sampling.register_noisier_as_target", &O::register_noisier_as_target, R::any(), "",
+       "when the source's surface thickness (a variance, in target units) is at least twice the target's, the "
+       "target is registered onto the source and the result and its covariance inverted (registerClouds, the "
+       "merge's refinement)"},
       {"matcher.normal_neighbors", &O::normal_neighbors, R::atLeast(3), "",
        "neighbours of each plane: its normal and the centroid it passes through"},
       {"outlier_rejection.max_correspondence_distance", &O::max_correspondence_distance, R::atLeast(0), "target units",
