@@ -1,8 +1,11 @@
 #include <gtest/gtest.h>
 
+#include <Eigen/Cholesky>
 #include <Eigen/LU>
 
+#include <cmath>
 #include <cstdio>
+#include <random>
 
 #include "pcr_pro/registration/covariance.h"
 #include "pcr_pro/registration/icp.h"
@@ -357,6 +360,55 @@ TEST(NormalsAt, ThicknessFollowsTheLocalNoise) {
   estimateNormalsAt(KdTree(two), {0, 1}, 10, nullptr, &none);
   EXPECT_EQ(none.size(), 2);
   EXPECT_EQ(none.cwiseAbs().maxCoeff(), 0.0);
+}
+
+
+// invertCovarianceResult(): a registration run the other way round, of S = S_source_target,
+// turned into one of S^-1. Against a Monte-Carlo of the inversion itself: perturbations δ ~ C
+// of S (left, similarity_fit.h), each inverted and measured against S^-1. The similarity has a
+// scale (2.5: a covariance7 moved with s where log s belongs would be off by s^4 in the scale's
+// variance) and a far origin (the lever arm, and the scale's share of the translation).
+TEST(Covariance, AResultOfTheInverseRegistrationIsMovedIntoTheAskedDirection) {
+  const Sim3 s(2.5, Eigen::AngleAxisd(0.6, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix(),
+               Eigen::Vector3d(12.0, -7.0, 3.0));
+  const Sim3 forward = s.inverse();
+  std::mt19937 rng(5);
+  std::normal_distribution<double> n(0.0, 1.0);
+  Matrix7d a;
+  for (int i = 0; i < 7; ++i)
+    for (int j = 0; j < 7; ++j) a(i, j) = n(rng);
+  Eigen::Matrix<double, 7, 1> sd;
+  sd << 0.01, 0.02, 0.015, 0.002, 0.003, 0.001, 0.004;  // translation, rotation [rad], log scale
+  const Matrix7d l = sd.asDiagonal() * (0.3 * a * a.transpose() / 7.0 + Matrix7d::Identity()) * sd.asDiagonal();
+  CovarianceResult res;
+  res.with_scale = true;
+  res.covariance = l.topLeftCorner<6, 6>();
+  res.information = res.covariance.inverse();
+  Eigen::Matrix<double, 7, 1> jd = Eigen::Matrix<double, 7, 1>::Ones();
+  jd(6) = s.scale();
+  res.covariance7 = jd.asDiagonal() * l * jd.asDiagonal();  // 7th variable s
+  res.scale_stddev = std::sqrt(res.covariance7(6, 6));
+  res.noise_stddev = 0.01;
+  invertCovarianceResult(forward, &res);
+
+  const Eigen::LLT<Matrix7d> llt(l);
+  const int trials = 20000;
+  Matrix7d mc = Matrix7d::Zero();
+  double var_scale = 0.0;
+  for (int k = 0; k < trials; ++k) {
+    Eigen::Matrix<double, 7, 1> z;
+    for (int i = 0; i < 7; ++i) z(i) = n(rng);
+    const Sim3 inverted = applyDelta(llt.matrixL() * z, s).inverse();
+    const Eigen::Matrix<double, 7, 1> d = similarityDifference(inverted, forward);
+    mc += d * d.transpose() / trials;
+    var_scale += std::pow(inverted.scale() - forward.scale(), 2) / trials;
+  }
+  const Matrix7d got = logScaleCovariance(res, forward.scale());
+  for (int i = 0; i < 7; ++i) EXPECT_NEAR(got(i, i) / mc(i, i), 1.0, 0.05) << "variable " << i;
+  EXPECT_NEAR(res.scale_stddev / std::sqrt(var_scale), 1.0, 0.03);
+  EXPECT_TRUE(res.covariance.isApprox(got.topLeftCorner<6, 6>(), 1e-12));
+  EXPECT_TRUE((res.information * res.covariance).isApprox(Matrix6d::Identity(), 1e-8));
+  EXPECT_NEAR(res.noise_stddev, 0.01 / 2.5, 1e-15);  // into the target's units
 }
 
 }  // namespace

@@ -552,18 +552,19 @@ void invertCovarianceResult(const Sim3& forward, CovarianceResult* res) {
   c = 0.5 * (c + c.transpose()).eval();
   const Matrix6d before = res->information;
   res->covariance = c.topLeftCorner<6, 6>();
+  Matrix6d information = Matrix6d::Constant(std::numeric_limits<double>::quiet_NaN());
   if (res->status == Status::kOk) {
-    res->information = res->covariance.ldlt().solve(Matrix6d::Identity());
-    res->information = 0.5 * (res->information + res->information.transpose()).eval();
-  } else {
-    // Zero along the unobservable directions, which the congruence keeps (the scale's cross
-    // terms left out: the pose marginal of a degenerate result is a bound, not an estimate).
-    const Eigen::FullPivLU<Matrix6d> lu(ad.topLeftCorner<6, 6>());
-    if (lu.isInvertible()) {
-      const Matrix6d inv = lu.inverse();
-      res->information = inv.transpose() * before * inv;
-    }
+    information = res->covariance.ldlt().solve(Matrix6d::Identity());
+    information = 0.5 * (information + information.transpose()).eval();
   }
+  if (!information.allFinite()) {
+    // A degenerate result's information is zero along the unobservable directions, which the
+    // congruence keeps (the scale's cross terms left out: the pose marginal of a degenerate
+    // result is a bound, not an estimate).
+    const Eigen::FullPivLU<Matrix6d> lu(ad.topLeftCorner<6, 6>());
+    information = lu.isInvertible() ? Matrix6d(lu.inverse().transpose() * before * lu.inverse()) : Matrix6d::Zero();
+  }
+  res->information = information;
   setCovariance7(c, forward, res->with_scale, res);
   res->noise_stddev *= forward.scale();
 }
