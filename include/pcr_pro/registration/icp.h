@@ -85,7 +85,9 @@ struct IcpOptions {
   /// worlds (source at inverse-depth noise 0.03, target 0.01, 2.5 % drift; thickness ratios
   /// 1.43-2.0 as standard deviations) the b -> a merges within the floors went from 46 to 49 of
   /// 54, the refinement alone from the exact truth from 57 to 72 of 108, and a -> b inverted
-  /// against b -> a from a median 0.19 deg / 0.19 % apart to 0.03 deg / 0.02 %. Below the
+  /// against b -> a from a median 0.19 deg / 0.19 % apart to 0.03 deg / 0.02 %; pcr_pro_icp
+  /// from the exact truth on those 18 worlds (b -> a) stayed within 1 deg / 1.5 % on 12 instead
+  /// of 7 (an offline probe, README Troubleshooting). Below the
   /// margin the direction is kept as asked: swapped on every ratio above 1, the held-out worlds
   /// of equal noise (ratios 0.88-1.17) went from 143 to 137 of 144, all six losses at inverse-
   /// depth noise 0.03, where which cloud is sampled and which is used whole outweighs a 10-17 %
