@@ -96,8 +96,8 @@ class MapRegistration {
    * moves the estimate (anchor_weight = f), and the covariance is computed there. With
    * covariance.jackknife_blocks > 0 the covariance then covers the spread of the refinement
    * re-run without each spatial block (jackknife.h; that many more ICP runs).
-   * With icp.register_noisier_as_target (options) and a source at least twice as noisy (noiseRatio()
-   * squared >= 2), all of this runs from the target onto the source and the result is inverted
+   * With icp.sampling.register_noisier_as_target (options) and a source at least twice as noisy
+   * (noiseRatio() squared >= 2), all of this runs from the target onto the source and the result is inverted
    * (Refinement::reversed).
    * @param[in] initial starting estimate (the keyframe estimate)
    * @param[in] anchors 3D-3D keyframe matches (group = keyframe pair); may be empty
