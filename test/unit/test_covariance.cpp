@@ -406,9 +406,31 @@ TEST(Covariance, AResultOfTheInverseRegistrationIsMovedIntoTheAskedDirection) {
   const Matrix7d got = logScaleCovariance(res, forward.scale());
   for (int i = 0; i < 7; ++i) EXPECT_NEAR(got(i, i) / mc(i, i), 1.0, 0.05) << "variable " << i;
   EXPECT_NEAR(res.scale_stddev / std::sqrt(var_scale), 1.0, 0.03);
-  EXPECT_TRUE(res.covariance.isApprox(got.topLeftCorner<6, 6>(), 1e-12));
   EXPECT_TRUE((res.information * res.covariance).isApprox(Matrix6d::Identity(), 1e-8));
   EXPECT_NEAR(res.noise_stddev, 0.01 / 2.5, 1e-15);  // into the target's units
+}
+
+// A degenerate result's information is zero along its unobservable direction; inverted, it
+// stays zero along that direction moved by the adjoint (and finite), instead of the inverse of a
+// covariance that is singular there.
+TEST(Covariance, AnInvertedDegenerateResultKeepsItsUnobservableDirection) {
+  const Sim3 s(2.5, Eigen::AngleAxisd(0.6, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix(),
+               Eigen::Vector3d(12.0, -7.0, 3.0));
+  const Sim3 forward = s.inverse();
+  CovarianceResult res;
+  res.status = Status::kDegenerate;
+  res.covariance = 1e-4 * Matrix6d::Identity();
+  res.covariance(0, 0) = 0.0;  // the x translation is not constrained: no variance claimed, no information
+  res.information = 1e4 * Matrix6d::Identity();
+  res.information(0, 0) = 0.0;
+  invertCovarianceResult(forward, &res);
+  ASSERT_TRUE(res.information.allFinite());
+  // δ along x about S is -Ad(S^-1) δ about S^-1; the information there is zero.
+  Eigen::Matrix<double, 6, 1> e = Eigen::Matrix<double, 6, 1>::Zero();
+  e(0) = 1.0;
+  const Eigen::Matrix<double, 6, 1> moved = similarityAdjoint(forward).topLeftCorner<6, 6>() * e;
+  EXPECT_NEAR(moved.dot(res.information * moved), 0.0, 1e-9 * res.information.norm());
+  EXPECT_GT(res.information.norm(), 0.0);
 }
 
 }  // namespace

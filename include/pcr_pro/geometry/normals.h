@@ -66,4 +66,8 @@ inline constexpr double kNoisierVarianceRatio = 2.0;
  */
 double noiseRatio(double scale, double source_thickness2, double target_thickness2);
 
+/// @return whether a source of this noiseRatio() is clearly the noisier cloud: its thickness
+/// variance at least kNoisierVarianceRatio times the target's
+inline bool clearlyNoisier(double noise_ratio) { return noise_ratio * noise_ratio >= kNoisierVarianceRatio; }
+
 }  // namespace pcr_pro

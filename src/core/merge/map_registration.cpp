@@ -149,7 +149,7 @@ double MapRegistration::noiseRatio(const Sim3& target_source) const {
 Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
   if (!target_tree_) throw InputError("MapRegistration::refine: setClouds() first");
   const double ratio = noiseRatio(initial);
-  if (!options_.icp.register_noisier_as_target || !(ratio * ratio >= kNoisierVarianceRatio)) {
+  if (!options_.icp.register_noisier_as_target || !clearlyNoisier(ratio)) {
     Refinement out = refineDirected(source_, target_, *target_tree_, initial, anchors);
     out.noise_ratio = ratio;
     return out;

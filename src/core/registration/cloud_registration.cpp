@@ -79,7 +79,7 @@ RegistrationReport registerClouds(const Cloud& source, const Cloud& target, cons
     ratio = noiseRatio(start.scale(), surfaceThickness2(*source_tree, k, kThicknessSamples),
                        surfaceThickness2(*tgt_tree, k, kThicknessSamples));
   }
-  const bool reversed = options.icp.register_noisier_as_target && ratio * ratio >= kNoisierVarianceRatio;
+  const bool reversed = options.icp.register_noisier_as_target && clearlyNoisier(ratio);
   const Cloud& moving = reversed ? tgt : src;
   const Cloud& fixed = reversed ? src : tgt;
   const IcpResult icp = reversed   ? alignIcp(tgt, *source_tree, start.inverse(), options.icp)
