@@ -311,6 +311,32 @@ TEST(Merge, ShippedConfigLoadsWithStructDefaults) {
   EXPECT_THROW(parseMergeConfig("keyframe_depth: {spatial_sigma_px: 0}\n", "x.yaml"), InputError);
 }
 
+// A key that moved (merge.register_noisier_as_target, now the ICP's) is refused with where it
+// lives now, the file and the line; the new key is read; the same name elsewhere is only unknown.
+TEST(Merge, AMovedConfigKeyNamesItsNewPlace) {
+  std::string message;
+  try {
+    parseMergeConfig("merge:\n  min_overlap: 0.3\n  register_noisier_as_target: false\n", "old.yaml");
+  } catch (const InputError& e) {
+    message = e.what();
+  }
+  for (const char* part : {"old.yaml", "merge.register_noisier_as_target: unknown key",
+                           "now icp.sampling.register_noisier_as_target", "(line 3)"}) {
+    EXPECT_NE(message.find(part), std::string::npos) << "'" << message << "' lacks '" << part << "'";
+  }
+  EXPECT_EQ(message.find('\n'), std::string::npos) << "one line";
+  EXPECT_TRUE(MergeOptions().registration.icp.register_noisier_as_target);
+  EXPECT_FALSE(parseMergeConfig("icp:\n  sampling:\n    register_noisier_as_target: false\n", "new.yaml")
+                   .registration.icp.register_noisier_as_target);
+  message.clear();
+  try {
+    parseMergeConfig("icp:\n  register_noisier_as_target: false\n", "x.yaml");
+  } catch (const InputError& e) {
+    message = e.what();
+  }
+  EXPECT_NE(message.find("icp.register_noisier_as_target: unknown key (allowed:"), std::string::npos) << message;
+}
+
 // --- the pcr_pro_merge command line
 
 using test::CliRun;

@@ -25,6 +25,26 @@ std::string allowedText(const std::vector<std::string>& allowed) {
   return oneLine(list, 240);
 }
 
+// Configuration keys that moved: the old path (as childKey() spells it) and the new one. A file
+// written for an earlier version then names the key to use instead of only listing the allowed
+// ones. Old paths are never reused for another setting.
+struct MovedKey {
+  const char* old_path;
+  const char* new_path;
+};
+constexpr MovedKey kMovedKeys[] = {
+    // one setting for the merge and pcr_pro_icp (2026-12-04): the merge reads the ICP's options
+    {"merge.register_noisier_as_target", "icp.sampling.register_noisier_as_target"},
+};
+
+// @return the key a moved key is now, or null
+const char* movedTo(const std::string& path) {
+  for (const MovedKey& m : kMovedKeys) {
+    if (path == m.old_path) return m.new_path;
+  }
+  return nullptr;
+}
+
 }  // namespace
 
 std::string oneLine(const std::string& text, std::size_t max_length) {
@@ -130,9 +150,12 @@ Fields FieldReader::fields(const YAML::Node& node, const std::string& field,
 
 void FieldReader::rejectUnknown(const Fields& map, const std::vector<std::string>& allowed) const {
   for (const Entry& entry : map.entries) {
-    if (std::find(allowed.begin(), allowed.end(), entry.key) == allowed.end()) {
-      fail(childKey(map.path, printable(entry.key)), entry.key_node, "unknown key (allowed: " + allowedText(allowed) + ")");
+    if (std::find(allowed.begin(), allowed.end(), entry.key) != allowed.end()) continue;
+    if (const char* moved = movedTo(childKey(map.path, entry.key))) {
+      fail(childKey(map.path, printable(entry.key)), entry.key_node,
+           std::string("unknown key: this setting is now ") + moved + " (same meaning and default)");
     }
+    fail(childKey(map.path, printable(entry.key)), entry.key_node, "unknown key (allowed: " + allowedText(allowed) + ")");
   }
 }
 
