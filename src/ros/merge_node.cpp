@@ -559,6 +559,8 @@ Response MergeNode::mergeMaps(const MergeJob& job, const Snapshot& s, const Agen
   timing->stages = result.report.timings;
   timing->features_computed = result.diagnostics.features_computed;
   timing->features_cached = result.diagnostics.features_cached;
+  timing->pairs_cached = result.diagnostics.pairs_cached;
+  timing->pairs_computed = result.diagnostics.candidate_pairs - result.diagnostics.pairs_cached;
   // The pipeline cached the features of the snapshot's keyframes; those that left the map
   // while it ran were invalidated before they were stored: forget them now, or the cache
   // grows with every merge of a streaming agent (the soak test's resident memory).
@@ -726,6 +728,8 @@ void MergeNode::mergeDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& s)
     s.addf("last_publish_ms", "%.1f", t->publish_ms);
     s.add("last_features_computed", t->features_computed);
     s.add("last_features_cached", t->features_cached);
+    s.add("last_pairs_computed", t->pairs_computed);
+    s.add("last_pairs_cached", t->pairs_cached);
   }
   std::lock_guard<std::mutex> history_lock(history_mutex_);
   s.add("history_edges", history_.size());

@@ -261,13 +261,18 @@ TEST_F(RealLsdSlam, EdgeBetweenTheAnchorKeyframes) {
   EXPECT_TRUE(used);
 }
 
-TEST_F(RealLsdSlam, SecondMergeReusesTheFeatures) {
+TEST_F(RealLsdSlam, SecondMergeReusesTheFeaturesAndPairs) {
   const RealMerges& m = realMerges();
-  std::printf("second merge b->a (features cached): %.0f ms, %d keyframes computed, %d cached\n", m.warm_ms,
-              m.warm.features_computed, m.warm.features_cached);
+  std::printf("second merge b->a (features cached): %.0f ms, %d keyframes computed, %d cached; %d of %d pairs "
+              "from the pair cache\n",
+              m.warm_ms, m.warm.features_computed, m.warm.features_cached, m.warm.pairs_cached,
+              m.warm.candidate_pairs);
   RecordProperty("warm_merge_ms", std::to_string(m.warm_ms));
   EXPECT_EQ(m.warm.features_computed, 0);
   EXPECT_EQ(m.warm.features_cached, 28);
+  // Nor any matching or relative pose (the keyframes did not change).
+  EXPECT_GT(m.warm.candidate_pairs, 0);
+  EXPECT_EQ(m.warm.pairs_cached, m.warm.candidate_pairs);
 }
 
 // --- a simulator world with LSD-like semi-dense depth and drift, exact truth

@@ -176,9 +176,13 @@ TEST_F(SimWorld, SecondMergeComputesNoFeaturesAndAResentKeyframeIsRecomputed) {
   const int keyframes = static_cast<int>(map(0).keyframes.size() + map(1).keyframes.size());
   EXPECT_EQ(first.diagnostics.features_computed, keyframes);
   EXPECT_EQ(first.diagnostics.features_cached, 0);
+  EXPECT_EQ(first.diagnostics.pairs_cached, 0);
   const MergeResult second = pipeline.merge(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
   EXPECT_EQ(second.diagnostics.features_computed, 0);
   EXPECT_EQ(second.diagnostics.features_cached, keyframes);
+  // Nor any matching or relative pose: every candidate pair comes from the pair cache.
+  EXPECT_EQ(second.diagnostics.candidate_pairs, first.diagnostics.candidate_pairs);
+  EXPECT_EQ(second.diagnostics.pairs_cached, second.diagnostics.candidate_pairs);
   // Same data, same answer.
   EXPECT_EQ(second.report.transform->matrix(), first.report.transform->matrix());
   // A keyframe re-sent with other content under the same id: only it is recomputed.
@@ -202,9 +206,12 @@ TEST_F(SimWorld, TheFrontEndGivesTheSameAnswerOnOneThreadAsOnTwo) {
   omp_set_num_threads(1);
   const FrontEndResult one = front.run(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
   omp_set_num_threads(2);
+  front.pairCache().clear();  // matched again, not taken from the first run
   const FrontEndResult two = front.run(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
   omp_set_num_threads(threads);
   ASSERT_EQ(one.status, Status::kOk) << one.message;
+  ASSERT_EQ(two.pairs_cached, 0);
+  ASSERT_FALSE(two.votes_cached);
   // The votes chose among more pairs than are matched in full.
   ASSERT_GT(one.keyframe_pairs, options.merge.max_candidate_pairs);
   ASSERT_EQ(one.pairs.size(), two.pairs.size());
@@ -221,6 +228,88 @@ TEST_F(SimWorld, TheFrontEndGivesTheSameAnswerOnOneThreadAsOnTwo) {
     EXPECT_EQ(a.pose.inlier_count, b.pose.inlier_count) << k;
     EXPECT_EQ(a.pose.rotation, b.pose.rotation) << k;
   }
+}
+
+// The pair cache gives exactly what matching and RANSAC would; a keyframe re-sent with other
+// content gets its pairs (and the votes) recomputed, and only those; another camera misses.
+TEST_F(SimWorld, CachedPairsAreThoseRecomputedAndAChangedKeyframeMissesOnlyItsOwn) {
+  const MergeOptions options;
+  KeyframeFrontEnd front(options);
+  const FrontEndResult cold = front.run(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
+  ASSERT_EQ(cold.status, Status::kOk) << cold.message;
+  ASSERT_GT(cold.keyframe_pairs, options.merge.max_candidate_pairs) << "the votes preselect";
+  EXPECT_EQ(cold.pairs_cached, 0);
+  EXPECT_FALSE(cold.votes_cached);
+  const FrontEndResult warm = front.run(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
+  EXPECT_TRUE(warm.votes_cached);
+  ASSERT_EQ(warm.pairs.size(), cold.pairs.size());
+  EXPECT_EQ(warm.pairs_cached, static_cast<int>(warm.pairs.size()));
+  for (std::size_t k = 0; k < cold.pairs.size(); ++k) {
+    const CandidatePair& a = cold.pairs[k];
+    const CandidatePair& b = warm.pairs[k];
+    EXPECT_TRUE(b.cached) << k;
+    EXPECT_EQ(a.source->id, b.source->id) << k;
+    EXPECT_EQ(a.target->id, b.target->id) << k;
+    EXPECT_EQ(a.votes, b.votes) << k;
+    EXPECT_EQ(a.matches.index_a, b.matches.index_a) << k;
+    EXPECT_EQ(a.matches.index_b, b.matches.index_b) << k;
+    EXPECT_EQ(a.pose.status, b.pose.status) << k;
+    EXPECT_EQ(a.pose.inliers, b.pose.inliers) << k;
+    EXPECT_EQ(a.pose.rotation, b.pose.rotation) << k;
+  }
+  // The best pair's target keyframe re-sent with one pixel changed (new features, still the
+  // best match): its pairs miss, the others hit.
+  AgentMap changed = map(0);
+  const long resent = cold.pairs.front().target->id;
+  for (MapKeyframe& k : changed.keyframes) {
+    if (k.id != resent) continue;
+    k.image = k.image.clone();
+    k.image.at<unsigned char>(0, 0) ^= 1;
+  }
+  const FrontEndResult after = front.run(map(1), changed, MergeRequest(), "agent_b", "agent_a");
+  EXPECT_EQ(after.features_computed, 1);
+  EXPECT_FALSE(after.votes_cached);
+  int own = 0, others_cached = 0;
+  for (const CandidatePair& c : after.pairs) {
+    if (c.target->id == resent) {
+      ++own;
+      EXPECT_FALSE(c.cached) << "a pair of the re-sent keyframe";
+    } else {
+      others_cached += c.cached ? 1 : 0;
+    }
+  }
+  EXPECT_GT(own, 0);
+  EXPECT_EQ(after.pairs_cached, others_cached);
+  EXPECT_GT(others_cached, 0);
+  // Another source camera (the bearings and the RANSAC threshold change): nothing is reused.
+  AgentMap recalibrated = map(1);
+  recalibrated.camera.fx *= 1.01;
+  const FrontEndResult other_camera = front.run(recalibrated, changed, MergeRequest(), "agent_b", "agent_a");
+  EXPECT_EQ(other_camera.pairs_cached, 0);
+}
+
+// The pair cache is bounded: past PairCache::kMaxPairs entries the least recently used goes.
+TEST(PairCache, KeepsAtMostItsBoundAndDropsTheLeastRecentlyUsed) {
+  PairCache cache;
+  const PinholeCamera camera{100, 100, 50, 50, 100, 100};
+  const auto source = std::make_shared<const KeyframeFeatures>();
+  std::vector<PairCache::Features> targets;
+  const auto result = std::make_shared<const PairCache::PairResult>();
+  for (std::size_t i = 0; i <= PairCache::kMaxPairs; ++i) {
+    targets.push_back(std::make_shared<const KeyframeFeatures>());
+    cache.store(targets.back(), source, camera, camera, result);
+    if (i == 1) {
+      ASSERT_NE(cache.find(targets[0], source, camera, camera), nullptr);  // 0 used again: 1 is older
+    }
+  }
+  EXPECT_EQ(cache.size(), PairCache::kMaxPairs);
+  EXPECT_NE(cache.find(targets[0], source, camera, camera), nullptr);
+  EXPECT_EQ(cache.find(targets[1], source, camera, camera), nullptr);
+  EXPECT_NE(cache.find(targets.back(), source, camera, camera), nullptr);
+  // Features that are gone: their entries miss and are pruned.
+  targets.resize(10);
+  cache.prune();
+  EXPECT_EQ(cache.size(), 9u);  // targets 0 and 2-9 (1 was dropped)
 }
 
 TEST_F(SimWorld, APairOfTheWrongKeyframesIsDroppedAndReported) {

@@ -2,7 +2,7 @@
  * @file keyframe_front_end.h
  * @brief The merge's fast estimate, stage 1: SIFT once per keyframe (cached across merges),
  * the descriptor-vote preselection of keyframe pairs, FLANN matching and the OpenGV relative
- * pose of every candidate pair; then, when the preselection left pairs out, every pair within
+ * pose of every candidate pair (the votes, matches and poses cached across merges too); then, when the preselection left pairs out, every pair within
  * merge.local_keyframes of the best verified pair too (where the maps overlap best).
  */
 #pragma once
@@ -60,6 +60,65 @@ struct CandidatePair {
   int votes = -1;          ///< descriptor votes of the preselection (-1: no preselection)
   FeatureMatches matches;  ///< a = target keyframe, b = source keyframe
   RelativePoseResult pose;
+  bool cached = false;     ///< matches and pose came from the PairCache (computed by an earlier merge)
+};
+
+/**
+ * @brief What the front end computed from keyframe images alone, kept across merges: the matches
+ * and relative pose of each keyframe pair matched in full, and the last vote matrix of the
+ * preselection. Neither depends on keyframe poses, depth or map clouds, which change as the maps
+ * grow. Entries are keyed by the keyframes' features and hold them weakly: a keyframe re-sent with
+ * other content, or invalidated in the FeatureCache, gets new features, so every entry made from
+ * its old ones misses (and is dropped at the next run). A pair entry also keeps both cameras and
+ * misses when either changed. The matching, relative-pose and vote computations are seeded per
+ * pair, so a hit gives exactly what recomputing would. Thread-safe.
+ */
+class PairCache {
+ public:
+  /// Matches and relative pose of one pair.
+  struct PairResult {
+    FeatureMatches matches;
+    RelativePoseResult pose;
+  };
+  using Features = std::shared_ptr<const KeyframeFeatures>;
+
+  /// Pair entries kept at most; past it the least recently used is dropped. A merge matches at
+  /// most merge.max_candidate_pairs + (2 merge.local_keyframes + 1)² pairs (59 by default), so
+  /// this holds the pairs of 17 such merges or more; a pair's matches take about 40 bytes each
+  /// (20 kB for 500), so the cache stays within about 20 MB however long a node runs.
+  static constexpr std::size_t kMaxPairs = 1024;
+
+  /// @return the pair's cached result, or null when absent or made from other features or cameras
+  std::shared_ptr<const PairResult> find(const Features& target, const Features& source,
+                                         const PinholeCamera& target_camera, const PinholeCamera& source_camera);
+  void store(const Features& target, const Features& source, const PinholeCamera& target_camera,
+             const PinholeCamera& source_camera, std::shared_ptr<const PairResult> result);
+  /// @return the votes last stored for exactly these source and target features (same order), or null
+  std::shared_ptr<const std::vector<std::vector<int>>> findVotes(const std::vector<Features>& sources,
+                                                                 const std::vector<Features>& targets) const;
+  void storeVotes(const std::vector<Features>& sources, const std::vector<Features>& targets,
+                  std::shared_ptr<const std::vector<std::vector<int>>> votes);
+  /// Drops the entries whose features are gone.
+  void prune();
+  void clear();
+  /// @return number of pair entries
+  std::size_t size() const;
+
+ private:
+  struct Slot {
+    std::weak_ptr<const KeyframeFeatures> target, source;
+    PinholeCamera target_camera, source_camera;
+    std::shared_ptr<const PairResult> result;
+    std::uint64_t used = 0;  ///< clock_ at the last find() or store()
+  };
+  struct VoteSlot {
+    std::vector<std::weak_ptr<const KeyframeFeatures>> sources, targets;
+    std::shared_ptr<const std::vector<std::vector<int>>> votes;
+  };
+  mutable std::mutex mutex_;
+  std::map<std::pair<const KeyframeFeatures*, const KeyframeFeatures*>, Slot> slots_;
+  VoteSlot votes_;
+  std::uint64_t clock_ = 0;
 };
 
 /**
@@ -84,6 +143,8 @@ struct FrontEndResult {
   int keyframe_pairs = 0;  ///< keyframe pairs there were before the preselection
   int features_computed = 0;
   int features_cached = 0;
+  int pairs_cached = 0;        ///< pairs whose matches and relative pose came from the PairCache
+  bool votes_cached = false;   ///< the preselection's votes came from the PairCache
   double features_ms = 0.0;       ///< SIFT and matching
   double relative_pose_ms = 0.0;  ///< RANSAC and refinement of every candidate
 };
@@ -106,6 +167,7 @@ class KeyframeFrontEnd {
                      const std::string& source_key = "source", const std::string& target_key = "target");
 
   FeatureCache& cache() { return cache_; }
+  PairCache& pairCache() { return pair_cache_; }
   const MergeOptions& options() const { return options_; }
 
  private:
@@ -118,9 +180,10 @@ class KeyframeFrontEnd {
                   const std::vector<std::shared_ptr<const KeyframeFeatures>>& tgt_features,
                   const std::vector<std::pair<std::size_t, std::size_t>>& pairs,
                   const std::vector<std::vector<int>>& votes, const PinholeCamera& source_camera,
-                  const PinholeCamera& target_camera, FrontEndResult* out) const;
+                  const PinholeCamera& target_camera, FrontEndResult* out);
   MergeOptions options_;
   FeatureCache cache_;
+  PairCache pair_cache_;
 };
 
 }  // namespace pcr_pro

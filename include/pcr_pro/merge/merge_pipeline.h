@@ -35,6 +35,7 @@ struct MergeDiagnostics {
   int distant_pairs = 0;           ///< verified pairs set aside as too far from the best pair (merge.local_keyframes)
   int features_computed = 0;       ///< keyframes whose SIFT features were computed by this merge
   int features_cached = 0;         ///< keyframes whose features came from the cache
+  int pairs_cached = 0;            ///< candidate pairs whose matches and relative pose came from the cache
   int feature_matches = 0;         ///< good SIFT matches of the anchor pair
   int relative_pose_inliers = 0;   ///< OpenGV inliers of the anchor pair
   int depth_matches = 0;           ///< inliers of the anchor pair with depth on both sides

@@ -75,6 +75,7 @@ class MergeNode {
     double publish_ms = 0.0;  // edge, fused / aligned clouds, tf, history
     StageTimings stages;      // the pipeline's own (stages.total: the whole pipeline)
     int features_computed = 0, features_cached = 0;  // keyframes whose SIFT was computed / came from the cache
+    int pairs_computed = 0, pairs_cached = 0;  // candidate pairs matched and posed / taken from the pair cache
   };
   struct MergeState {
     bool attempted = false;

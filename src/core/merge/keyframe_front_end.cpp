@@ -80,7 +80,80 @@ std::vector<const MapKeyframe*> selectKeyframes(const AgentMap& map, const std::
   return out;
 }
 
+bool sameCamera(const PinholeCamera& a, const PinholeCamera& b) {
+  return a.fx == b.fx && a.fy == b.fy && a.cx == b.cx && a.cy == b.cy && a.width == b.width && a.height == b.height;
+}
+
+// Whether the weak pointers still point at exactly these features, in order.
+bool sameFeatures(const std::vector<std::weak_ptr<const KeyframeFeatures>>& held,
+                  const std::vector<PairCache::Features>& now) {
+  if (held.size() != now.size()) return false;
+  for (std::size_t i = 0; i < now.size(); ++i) {
+    if (held[i].expired() || held[i].lock() != now[i]) return false;
+  }
+  return true;
+}
+
 }  // namespace
+
+std::shared_ptr<const PairCache::PairResult> PairCache::find(const Features& target, const Features& source,
+                                                             const PinholeCamera& target_camera,
+                                                             const PinholeCamera& source_camera) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const auto it = slots_.find({target.get(), source.get()});
+  if (it == slots_.end()) return nullptr;
+  Slot& slot = it->second;
+  // An expired pointer means the features at that address are new ones (a re-sent keyframe).
+  if (slot.target.lock() != target || slot.source.lock() != source) return nullptr;
+  if (!sameCamera(slot.target_camera, target_camera) || !sameCamera(slot.source_camera, source_camera)) return nullptr;
+  slot.used = ++clock_;
+  return slot.result;
+}
+
+void PairCache::store(const Features& target, const Features& source, const PinholeCamera& target_camera,
+                      const PinholeCamera& source_camera, std::shared_ptr<const PairResult> result) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  slots_[{target.get(), source.get()}] = Slot{target, source, target_camera, source_camera, std::move(result), ++clock_};
+  if (slots_.size() > kMaxPairs) {
+    auto oldest = slots_.begin();
+    for (auto it = slots_.begin(); it != slots_.end(); ++it) {
+      if (it->second.used < oldest->second.used) oldest = it;
+    }
+    slots_.erase(oldest);
+  }
+}
+
+std::shared_ptr<const std::vector<std::vector<int>>> PairCache::findVotes(const std::vector<Features>& sources,
+                                                                          const std::vector<Features>& targets) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!votes_.votes || !sameFeatures(votes_.sources, sources) || !sameFeatures(votes_.targets, targets)) return nullptr;
+  return votes_.votes;
+}
+
+void PairCache::storeVotes(const std::vector<Features>& sources, const std::vector<Features>& targets,
+                           std::shared_ptr<const std::vector<std::vector<int>>> votes) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  votes_ = VoteSlot{{sources.begin(), sources.end()}, {targets.begin(), targets.end()}, std::move(votes)};
+}
+
+void PairCache::prune() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (auto it = slots_.begin(); it != slots_.end();) {
+    const bool gone = it->second.target.expired() || it->second.source.expired();
+    it = gone ? slots_.erase(it) : std::next(it);
+  }
+}
+
+void PairCache::clear() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  slots_.clear();
+  votes_ = VoteSlot();
+}
+
+std::size_t PairCache::size() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return slots_.size();
+}
 
 std::shared_ptr<const KeyframeFeatures> FeatureCache::find(const std::string& map_key, const MapKeyframe& keyframe,
                                                            const FeatureMatchingOptions& options) const {
@@ -174,6 +247,7 @@ FrontEndResult KeyframeFrontEnd::run(const AgentMap& source, const AgentMap& tar
   const auto t = Clock::now();
   const auto src_features = featuresOf(src, source_key, &out);
   const auto tgt_features = featuresOf(tgt, target_key, &out);
+  pair_cache_.prune();  // entries of features the FeatureCache no longer holds
 
   // Pairs to match in full: all of them, or the max_candidate_pairs with the most votes.
   std::vector<std::pair<std::size_t, std::size_t>> pairs;
@@ -184,10 +258,16 @@ FrontEndResult KeyframeFrontEnd::run(const AgentMap& source, const AgentMap& tar
   std::vector<std::vector<int>> votes;
   const auto max_pairs = static_cast<std::size_t>(options_.merge.max_candidate_pairs);
   if (max_pairs > 0 && pairs.size() > max_pairs) {
-    std::vector<const KeyframeFeatures*> sf, tf;
-    for (const auto& f : src_features) sf.push_back(f.get());
-    for (const auto& f : tgt_features) tf.push_back(f.get());
-    votes = keyframePairVotes(sf, tf, options_.matching);
+    if (const auto cached = pair_cache_.findVotes(src_features, tgt_features)) {
+      votes = *cached;
+      out.votes_cached = true;
+    } else {
+      std::vector<const KeyframeFeatures*> sf, tf;
+      for (const auto& f : src_features) sf.push_back(f.get());
+      for (const auto& f : tgt_features) tf.push_back(f.get());
+      votes = keyframePairVotes(sf, tf, options_.matching);
+      pair_cache_.storeVotes(src_features, tgt_features, std::make_shared<const std::vector<std::vector<int>>>(votes));
+    }
     std::stable_sort(pairs.begin(), pairs.end(), [&](const auto& a, const auto& b) {
       return votes[a.first][a.second] > votes[b.first][b.second];
     });
@@ -223,24 +303,39 @@ void KeyframeFrontEnd::matchPairs(const std::vector<const MapKeyframe*>& src, co
                                   const std::vector<std::shared_ptr<const KeyframeFeatures>>& tgt_features,
                                   const std::vector<std::pair<std::size_t, std::size_t>>& pairs,
                                   const std::vector<std::vector<int>>& votes, const PinholeCamera& source_camera,
-                                  const PinholeCamera& target_camera, FrontEndResult* out) const {
+                                  const PinholeCamera& target_camera, FrontEndResult* out) {
   auto t = Clock::now();
   const std::size_t first = out->pairs.size();
   out->pairs.resize(first + pairs.size());
-  // Each pair's matching and relative pose are seeded of their own (the descriptor index and
-  // RANSAC), so the pairs run in parallel with the same results as in turn.
-  forEachInParallel(pairs.size(), [&](std::size_t k) {
+  std::vector<std::size_t> missing;  // pairs the PairCache does not hold
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
     CandidatePair& c = out->pairs[first + k];
     c.source = src[pairs[k].first];
     c.target = tgt[pairs[k].second];
     if (!votes.empty()) c.votes = votes[pairs[k].first][pairs[k].second];
+    const auto cached = pair_cache_.find(tgt_features[pairs[k].second], src_features[pairs[k].first], target_camera,
+                                         source_camera);
+    if (cached) {
+      c.matches = cached->matches;
+      c.pose = cached->pose;
+      c.cached = true;
+      ++out->pairs_cached;
+    } else {
+      missing.push_back(k);
+    }
+  }
+  // Each pair's matching and relative pose are seeded of their own (the descriptor index and
+  // RANSAC), so the pairs run in parallel with the same results as in turn, or as from the cache.
+  forEachInParallel(missing.size(), [&](std::size_t m) {
+    const std::size_t k = missing[m];
+    CandidatePair& c = out->pairs[first + k];
     c.matches = matchFeatures(*tgt_features[pairs[k].second], *src_features[pairs[k].first], options_.matching);
   });
   out->features_ms += msSince(t);
 
   t = Clock::now();
-  forEachInParallel(pairs.size(), [&](std::size_t k) {
-    CandidatePair& c = out->pairs[first + k];
+  forEachInParallel(missing.size(), [&](std::size_t m) {
+    CandidatePair& c = out->pairs[first + missing[m]];
     if (static_cast<int>(c.matches.size()) < options_.matching.min_matches) {
       c.pose.status = Status::kNotEnoughMatches;
       c.pose.message = std::to_string(c.matches.size()) + " feature matches < matching.min_matches " +
@@ -249,6 +344,11 @@ void KeyframeFrontEnd::matchPairs(const std::vector<const MapKeyframe*>& src, co
     }
     c.pose = keyframePairPose(c.matches, target_camera, source_camera, options_.relative_pose);
   });
+  for (std::size_t k : missing) {
+    const CandidatePair& c = out->pairs[first + k];
+    pair_cache_.store(tgt_features[pairs[k].second], src_features[pairs[k].first], target_camera, source_camera,
+                      std::make_shared<const PairCache::PairResult>(PairCache::PairResult{c.matches, c.pose}));
+  }
   out->relative_pose_ms += msSince(t);
   std::stable_sort(out->pairs.begin(), out->pairs.end(), [](const CandidatePair& a, const CandidatePair& b) {
     const bool va = a.pose.status == Status::kOk, vb = b.pose.status == Status::kOk;

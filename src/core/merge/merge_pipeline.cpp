@@ -96,6 +96,7 @@ void recordFrontEnd(const FrontEndResult& front, RegistrationReport* rep, MergeD
   diag->verified_pairs = front.verified;
   diag->features_computed = front.features_computed;
   diag->features_cached = front.features_cached;
+  diag->pairs_cached = front.pairs_cached;
 }
 
 // No keyframe pair verified: the best pair into the report, and the status and message why.
