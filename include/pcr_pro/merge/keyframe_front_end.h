@@ -2,7 +2,8 @@
  * @file keyframe_front_end.h
  * @brief The merge's fast estimate, stage 1: SIFT once per keyframe (cached across merges),
  * the descriptor-vote preselection of keyframe pairs, FLANN matching and the OpenGV relative
- * pose of every candidate pair (the votes, matches and poses cached across merges too); then, when the preselection left pairs out, every pair within
+ * pose of every candidate pair (votes, matches and poses cached across merges as well); then,
+ * when the preselection left pairs out, every pair within
  * merge.local_keyframes of the best verified pair too (where the maps overlap best).
  */
 #pragma once
@@ -70,8 +71,8 @@ struct CandidatePair {
  * grow. Entries are keyed by the keyframes' features and hold them weakly: a keyframe re-sent with
  * other content, or invalidated in the FeatureCache, gets new features, so every entry made from
  * its old ones misses (and is dropped at the next run). A pair entry also keeps both cameras and
- * misses when either changed. The matching, relative-pose and vote computations are seeded per
- * pair, so a hit gives exactly what recomputing would. Thread-safe.
+ * misses when either changed. Matching and RANSAC are seeded per pair and the votes' descriptor
+ * index by the options, so a hit gives exactly what recomputing would. Thread-safe.
  */
 class PairCache {
  public:
@@ -84,8 +85,9 @@ class PairCache {
 
   /// Pair entries kept at most; past it the least recently used is dropped. A merge matches at
   /// most merge.max_candidate_pairs + (2 merge.local_keyframes + 1)² pairs (59 by default), so
-  /// this holds the pairs of 17 such merges or more; a pair's matches take about 40 bytes each
-  /// (20 kB for 500), so the cache stays within about 20 MB however long a node runs.
+  /// this holds the pairs of 17 such merges or more. An entry takes about 50 bytes per match
+  /// (two pixels, two indices, a distance, an inlier index): 25 kB for 500 matches, so the cache
+  /// stays within about 25 MB however long a node runs.
   static constexpr std::size_t kMaxPairs = 1024;
 
   /// @return the pair's cached result, or null when absent or made from other features or cameras
