@@ -89,7 +89,7 @@ bool sameFeatures(const std::vector<std::weak_ptr<const KeyframeFeatures>>& held
                   const std::vector<PairCache::Features>& now) {
   if (held.size() != now.size()) return false;
   for (std::size_t i = 0; i < now.size(); ++i) {
-    if (held[i].expired() || held[i].lock() != now[i]) return false;
+    if (held[i].lock() != now[i]) return false;  // an expired one locks to null
   }
   return true;
 }

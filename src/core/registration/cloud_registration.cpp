@@ -67,24 +67,22 @@ RegistrationReport registerClouds(const Cloud& source, const Cloud& target, cons
   // noisy (thickness variance, in target units at the start's scale) becomes the ICP's target.
   t = std::chrono::steady_clock::now();
   std::unique_ptr<KdTree> own_target_tree, source_tree;
-  const KdTree* tgt_tree = target_tree;
+  if (!target_tree) {
+    own_target_tree = std::make_unique<KdTree>(tgt);
+    target_tree = own_target_tree.get();
+  }
   double ratio = 1.0;
   if (options.icp.register_noisier_as_target) {
-    if (!tgt_tree) {
-      own_target_tree = std::make_unique<KdTree>(tgt);
-      tgt_tree = own_target_tree.get();
-    }
     source_tree = std::make_unique<KdTree>(src);
     const int k = options.icp.normal_neighbors;
     ratio = noiseRatio(start.scale(), surfaceThickness2(*source_tree, k, kThicknessSamples),
-                       surfaceThickness2(*tgt_tree, k, kThicknessSamples));
+                       surfaceThickness2(*target_tree, k, kThicknessSamples));
   }
   const bool reversed = options.icp.register_noisier_as_target && clearlyNoisier(ratio);
   const Cloud& moving = reversed ? tgt : src;
   const Cloud& fixed = reversed ? src : tgt;
-  const IcpResult icp = reversed   ? alignIcp(tgt, *source_tree, start.inverse(), options.icp)
-                        : tgt_tree ? alignIcp(src, *tgt_tree, start, options.icp)
-                                   : alignIcp(src, tgt, start, options.icp);
+  const IcpResult icp = alignIcp(moving, reversed ? *source_tree : *target_tree, reversed ? start.inverse() : start,
+                                 options.icp);
   report.timings.icp = msSince(t);
   // The result as asked, S_target_source; lengths in the target's units.
   const Sim3 transform = reversed ? icp.transform.inverse() : icp.transform;
