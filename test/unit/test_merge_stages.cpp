@@ -742,20 +742,23 @@ TEST(LowOverlapWorld, WhenThePairsSplitAndTheRefinementIsNotKeptTheCampTheClouds
 // deg from the one-sided truth used before 2026-12-03) and its block spread says the clouds' own
 // covariance is several times too small. Weighing the keyframe matches up by that factor moves
 // the estimate to 0.51 deg (0.94 deg from the one-sided truth); without the reweighing this test
-// fails (measured).
+// fails (measured). The combination with the keyframe estimate is off in both runs, so that
+// the refined estimates are compared as they are.
 TEST(DriftingWorld, TheKeyframeMatchesAreWeighedUpByTheCloudsBlockSpread) {
   const Simulation sim = simulate(test::benchWorldOptions(0.35, 0.05, 0.01, 0, true));
   const AgentMap& a = sim.agents[0].map;
   const AgentMap& b = sim.agents[1].map;
   const Sim3& truth = sim.pair(0, 1).target_source;
-  const MergeResult r = mergeMaps(b, a, MergeRequest(), MergeOptions());
+  MergeOptions weighed;
+  weighed.merge.combine_with_keyframe_estimate = false;
+  const MergeResult r = mergeMaps(b, a, MergeRequest(), weighed);
   ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
   ASSERT_TRUE(r.report.transform && r.report.covariance);
   EXPECT_GT(r.diagnostics.anchor_weight, 1.0);
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.0));
   EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
   EXPECT_LT(poseNees(r, truth), kChi2Six95);
-  MergeOptions unweighed;
+  MergeOptions unweighed = weighed;
   unweighed.merge.reweigh_keyframe_matches = false;
   const MergeResult u = mergeMaps(b, a, MergeRequest(), unweighed);
   ASSERT_EQ(u.report.status, Status::kOk) << u.report.message;
@@ -768,39 +771,67 @@ TEST(DriftingWorld, TheKeyframeMatchesAreWeighedUpByTheCloudsBlockSpread) {
             rotationDistance(u.report.transform->rotation(), truth.rotation()));
 }
 
-// The same drifting world with merge.combine_with_keyframe_estimate on: the refinement kept
-// lies 0.51 deg from the truth and the keyframe estimate 0.57 deg, on different sides of it, and
-// the keyframe pairs' own similarities spread (between-pair covariance T > 0). Each estimate,
-// given T on top of its own covariance, then counts about as much as the other, and their
-// information-weighted mean is reported, 0.10 deg from the truth (measured); with the option off
-// (the default) the refined estimate is reported. (Against the one-sided truth used before
-// 2026-12-03: 0.94 deg refined, 0.54 deg combined.)
-TEST(DriftingWorld, AKeptRefinementCanBeCombinedWithTheKeyframeEstimate) {
+// merge.combine_with_keyframe_estimate (on by default) on the same drifting world: the refined
+// estimate lies 0.51 deg from the truth and the keyframe estimate 0.57 deg, on different sides
+// of it; the information-weighted mean, with the refinement weighed down by the gate's excess
+// max(1, chi2 / 7), is reported 0.44 deg from the truth (measured). With the option off the
+// refined estimate is reported as it is.
+TEST(DriftingWorld, AKeptRefinementIsCombinedWithTheKeyframeEstimate) {
   const Simulation sim = simulate(test::benchWorldOptions(0.35, 0.05, 0.01, 0, true));
   const AgentMap& a = sim.agents[0].map;
   const AgentMap& b = sim.agents[1].map;
   const Sim3& truth = sim.pair(0, 1).target_source;
-  MergeOptions combining;
-  combining.merge.combine_with_keyframe_estimate = true;
-  const MergeResult r = mergeMaps(b, a, MergeRequest(), combining);
+  const MergeResult r = mergeMaps(b, a, MergeRequest(), MergeOptions());
   ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
   ASSERT_TRUE(r.report.transform && r.report.covariance);
   EXPECT_TRUE(r.diagnostics.refinement_kept);
+  EXPECT_TRUE(r.diagnostics.combined);
   EXPECT_NE(r.report.message.find("combined with the keyframe estimate"), std::string::npos) << r.report.message;
-  EXPECT_GT(r.diagnostics.between_pairs.trace(), 0.0);
   const double combined = rotationDistance(r.report.transform->rotation(), truth.rotation());
   const double refined = rotationDistance(r.diagnostics.refined.rotation(), truth.rotation());
   const double keyframe = rotationDistance(r.diagnostics.initial.rotation(), truth.rotation());
   std::printf("rotation from the truth: keyframe %.2f deg, refined %.2f deg, combined %.2f deg\n", keyframe / test::rad(1.0),
               refined / test::rad(1.0), combined / test::rad(1.0));
   EXPECT_LT(combined, refined);
-  EXPECT_LT(combined, test::rad(0.75));
+  EXPECT_LT(combined, keyframe);
   EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
   EXPECT_LT(poseNees(r, truth), kChi2Six95);
-  const MergeResult u = mergeMaps(b, a, MergeRequest(), MergeOptions());
+  MergeOptions off;
+  off.merge.combine_with_keyframe_estimate = false;
+  const MergeResult u = mergeMaps(b, a, MergeRequest(), off);
   ASSERT_EQ(u.report.status, Status::kOk) << u.report.message;
+  EXPECT_FALSE(u.diagnostics.combined);
   EXPECT_EQ(u.report.message.find("combined"), std::string::npos) << u.report.message;
-  EXPECT_LT(combined, rotationDistance(u.report.transform->rotation(), truth.rotation()));
+  EXPECT_TRUE(u.report.transform->matrix().isApprox(u.diagnostics.refined.matrix(), 1e-12));
+  EXPECT_TRUE(u.report.transform->matrix().isApprox(r.diagnostics.refined.matrix(), 1e-9));
+}
+
+// The bench world o0.35_d0.025_n0.03_s0 with LSD-SLAM's keyframe depth: at inverse-depth noise
+// 0.03 the clouds' errors are shared over the overlap, and the refinement, kept by the agreement
+// gate, lies 1.29 deg from the truth while the keyframe estimate lies 0.68 deg from it; their
+// disagreement is beyond what the two covariances allow (chi2 > 7), so the refinement is weighed
+// down and the reported estimate is within the floors (0.81 deg in the bench). With the option
+// off, the refined estimate is reported, outside them.
+TEST(NoisyWorld, ARefinementThatDisagreesBeyondItsCovarianceIsWeighedDown) {
+  const Simulation sim = simulate(test::benchWorldOptions(0.35, 0.025, 0.03, 0, true));
+  const AgentMap a = test::withLsdKeyframeDepth(sim.agents[0], sim.options.camera);
+  const AgentMap b = test::withLsdKeyframeDepth(sim.agents[1], sim.options.camera);
+  const Sim3& truth = sim.pair(0, 1).target_source;
+  const MergeResult r = mergeMaps(b, a, MergeRequest(), MergeOptions());
+  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
+  ASSERT_TRUE(r.report.transform && r.report.covariance);
+  ASSERT_TRUE(r.diagnostics.combined);
+  EXPECT_GT(r.diagnostics.refinement_chi2, 7.0);
+  const double combined = rotationDistance(r.report.transform->rotation(), truth.rotation());
+  const double refined = rotationDistance(r.diagnostics.refined.rotation(), truth.rotation());
+  const double keyframe = rotationDistance(r.diagnostics.initial.rotation(), truth.rotation());
+  std::printf("rotation from the truth: keyframe %.2f deg, refined %.2f deg, combined %.2f deg (chi2 %.1f)\n",
+              keyframe / test::rad(1.0), refined / test::rad(1.0), combined / test::rad(1.0),
+              r.diagnostics.refinement_chi2);
+  EXPECT_GT(refined, test::rad(1.0));
+  EXPECT_LT(combined, test::rad(1.0));
+  EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
+  EXPECT_LT(poseNees(r, truth), kChi2Six95);
 }
 
 TEST(MergeGates, AlignedMapsThatDoNotOverlapAreNoOverlap) {
@@ -1023,6 +1054,87 @@ TEST(MergeGates, ARefinementBeyondTheCorrectionLimitsMustBeSupportedByTheClouds)
   converged.estimate = Sim3();
   const GateVerdict refused = gates.judge(kf, converged, registration);
   EXPECT_EQ(refused.status, Status::kInconsistent) << refused.message;
+}
+
+// The keyframe estimate as the refinement's prior (merge.combine_with_keyframe_estimate), in a
+// Monte-Carlo over the gates alone: the keyframe estimate is drawn about the truth from its
+// covariance K (sigma 1 % / 0.57 deg), the refinement from a covariance R ten times tighter.
+// - A refinement with an error its covariance does not hold (3 sigma_K in one rotation axis, as
+//   the clouds of a noisy map share): the refinement counts max(1, chi2 / 7) times less, and the
+//   reported estimate's RMS error is well below the refinement's (measured: 0.66 of it).
+// - An honest refinement: the combination costs accuracy, since a chi-square beyond its mean of
+//   7 (four draws in ten) is put on the refinement although chance made it (measured: RMS 3.0
+//   times the refinement's, a third of the keyframe estimate's). That is the price of the
+//   option, which the bench's merges do not pay (README, Configuration); off, the refinement is
+//   reported as it is.
+// The reported covariance (the refinement's, raised by the disagreement) covers the reported
+// estimate: honest, 97 % of the draws under the 7-DoF chi-square 95 % bound, as without the
+// combination; biased, 77 % instead of 67 % without it (one disagreement cannot show all of a
+// bias that the covariances do not hold).
+TEST(MergeGates, TheKeyframeEstimateIsAPriorThatARefinementBiasedBeyondItsCovarianceDoesNotOverride) {
+  const SameScene scene(14);
+  ASSERT_EQ(scene.set_clouds, "");
+  const MapRegistration& registration = scene.registration;
+  MergeGateOptions off_options;
+  off_options.combine_with_keyframe_estimate = false;
+  const MergeGates on{MergeGateOptions{}}, off{off_options};
+  ASSERT_TRUE(MergeGateOptions().combine_with_keyframe_estimate);
+  const double sigma_k = 0.01;
+  const Matrix7d k = sigma_k * sigma_k * Matrix7d::Identity();
+  const Matrix7d r = 0.01 * k;
+  const Eigen::LLT<Matrix7d> k_root(k), r_root(r);
+  std::mt19937 rng(15);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  const auto draw = [&](const Eigen::LLT<Matrix7d>& root) {
+    Vector7d z;
+    for (int i = 0; i < 7; ++i) z(i) = n01(rng);
+    return Vector7d(root.matrixL() * z);
+  };
+  const double chi2_7_95 = 14.067;
+  for (const double bias : {0.0, 3.0 * sigma_k}) {
+    double sq_refined = 0.0, sq_keyframe = 0.0, sq_on = 0.0, sq_off = 0.0;
+    int kept = 0, covered = 0, covered_off = 0;
+    for (int trial = 0; trial < 300; ++trial) {
+      KeyframeEstimate kf = twoPairKeyframeEstimate();
+      kf.covariance = k;
+      kf.estimate = applyDelta(draw(k_root), Sim3());
+      Refinement refinement;
+      refinement.status = Status::kOk;
+      refinement.covariance = r;
+      Vector7d e = draw(r_root);
+      e(3) += bias;  // rotation about x
+      refinement.estimate = applyDelta(e, Sim3());
+      const GateVerdict v = on.judge(kf, refinement, registration);
+      const GateVerdict u = off.judge(kf, refinement, registration);
+      ASSERT_EQ(v.status, Status::kOk) << v.message;
+      if (!v.refinement_kept) continue;  // beyond the agreement gate: the keyframe estimate, both ways
+      ASSERT_TRUE(u.refinement_kept);
+      EXPECT_TRUE(v.combined);
+      EXPECT_FALSE(u.combined);
+      ++kept;
+      const Vector7d err_on = similarityDifference(v.estimate, Sim3());
+      sq_on += err_on.squaredNorm();
+      sq_off += similarityDifference(u.estimate, Sim3()).squaredNorm();
+      sq_refined += similarityDifference(refinement.estimate, Sim3()).squaredNorm();
+      sq_keyframe += similarityDifference(kf.estimate, Sim3()).squaredNorm();
+      covered += err_on.dot(v.covariance.ldlt().solve(err_on)) <= chi2_7_95;
+      const Vector7d err_off = similarityDifference(u.estimate, Sim3());
+      covered_off += err_off.dot(u.covariance.ldlt().solve(err_off)) <= chi2_7_95;
+    }
+    ASSERT_GT(kept, 200) << "bias " << bias;
+    const double rms_on = std::sqrt(sq_on / kept), rms_refined = std::sqrt(sq_refined / kept);
+    const double rms_keyframe = std::sqrt(sq_keyframe / kept);
+    std::printf("bias %.3f: %d kept, RMS error keyframe %.4f, refined %.4f, reported %.4f; %d %% covered (off %d %%)\n",
+                bias, kept, rms_keyframe, rms_refined, rms_on, 100 * covered / kept, 100 * covered_off / kept);
+    EXPECT_DOUBLE_EQ(sq_off, sq_refined);  // off: the refinement as it is
+    if (bias == 0.0) {
+      EXPECT_GE(covered, 0.9 * kept);
+      EXPECT_LT(rms_on, 0.5 * rms_keyframe);
+    } else {
+      EXPECT_GT(covered, covered_off);
+      EXPECT_LT(rms_on, 0.8 * rms_refined);
+    }
+  }
 }
 
 // A refinement is not kept when it moves the keyframe matches farther than any used pair's own

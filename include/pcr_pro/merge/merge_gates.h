@@ -59,9 +59,12 @@ class MergeGates {
    * that R' + K = s (R + K); plus the keyframe pairs' between-pair covariance
    * (KeyframeEstimate::between: the edge is attached to one keyframe pair, where the local
    * similarity differs from the region's). With
-   * combine_with_keyframe_estimate the kept refinement is then combined with the keyframe
-   * estimate: their information-weighted mean, each with KeyframeEstimate::between added to its
-   * own covariance (the reported covariance stays as above).
+   * combine_with_keyframe_estimate (the default) the keyframe estimate acts as a prior: the
+   * reported estimate is the information-weighted mean of the keyframe estimate (covariance
+   * K + T, as in the agreement gate) and the refinement, whose covariance is raised by the
+   * gate's own excess g = max(1, refinement_chi2 / 7) to g R + (g − 1)(K + T): the plain mean
+   * while the two agree as their covariances say, the refinement weighed down as they disagree
+   * beyond it (the reported covariance stays as above).
    * Otherwise the keyframe estimate is reported, with why in the message, and a converged
    * refinement not kept decides its covariance or a refusal: one that moved the keyframe estimate
    * beyond max_icp_rotation_correction_deg or max_scale_disagreement went to another optimum and

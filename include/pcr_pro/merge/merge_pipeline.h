@@ -43,7 +43,9 @@ struct MergeDiagnostics {
   double kalman_scale = 0.0;       ///< scale of the keyframe estimate [-]
   double kalman_scale_stddev = 0.0;  ///< its standard deviation [-]
   double overlap = 0.0;            ///< overlap of the aligned maps [-]
-  bool refinement_kept = false;    ///< the reported estimate is the refined one
+  bool refinement_kept = false;    ///< the reported estimate is the refined one ...
+  /// ... combined with the keyframe estimate (GateVerdict::combined; `refined` holds the refinement's own)
+  bool combined = false;
   double refinement_chi2 = 0.0;    ///< refined vs keyframe estimate, squared Mahalanobis [-]
   double disagreement_scale = 1.0;  ///< GateVerdict::disagreement_scale [-]
   double block_spread_factor = 1.0;  ///< enlargement of the covariance by the block spread [-]

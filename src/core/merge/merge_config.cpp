@@ -19,9 +19,9 @@ const ParamSchema<MergeGateOptions>& paramSchema<MergeGateOptions>() {
        "one Gauss-Newton step at the ICP's final correspondences with the keyframe matches weighed up by its block "
        "spread factor (how many times the clouds' own covariance is too small)"},
       {"combine_with_keyframe_estimate", &O::combine_with_keyframe_estimate, R::any(), "",
-       "a refinement kept is combined with the keyframe estimate (information-weighted mean, each with the "
-       "between-pair covariance added to its own) instead of replacing it; helps on noisy drifting semi-dense maps, "
-       "hurts on accurate clouds"},
+       "the keyframe estimate is a prior: a refinement kept is combined with it (information-weighted mean, the "
+       "refinement's covariance raised by the agreement gate's excess max(1, chi2 / 7)); off = the refined estimate "
+       "as it is (depth-camera clouds, where the keyframe pairs are the worse evidence)"},
       {"max_candidate_pairs", &O::max_candidate_pairs, R::atLeast(0), "pairs",
        "without keyframe ids, only the keyframe pairs with the most descriptor votes are matched in full; 0 = every "
        "pair (cost grows with the product of the keyframe counts)"},

@@ -169,6 +169,7 @@ void recordRefinement(const Refinement& refinement, RegistrationReport* rep, Mer
 void recordVerdict(const GateVerdict& verdict, RegistrationReport* rep, MergeDiagnostics* diag) {
   diag->overlap = verdict.overlap;
   diag->refinement_kept = verdict.refinement_kept;
+  diag->combined = verdict.combined;
   diag->refinement_chi2 = verdict.refinement_chi2;
   diag->disagreement_scale = verdict.disagreement_scale;
   rep->overlap = verdict.overlap;
