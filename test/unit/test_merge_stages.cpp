@@ -1061,12 +1061,12 @@ TEST(MergeGates, ARefinementBeyondTheCorrectionLimitsMustBeSupportedByTheClouds)
 // covariance K (sigma 1 % / 0.57 deg), the refinement from a covariance R ten times tighter.
 // - A refinement with an error its covariance does not hold (3 sigma_K in one rotation axis, as
 //   the clouds of a noisy map share): the refinement counts max(1, chi2 / 7) times less, and the
-//   reported estimate's RMS error is well below the refinement's (measured: 0.66 of it).
+//   reported estimate's RMS error is well below the refinement's (measured: 0.73 of it).
 // - An honest refinement: the combination costs accuracy, since a chi-square beyond its mean of
 //   7 (four draws in ten) is put on the refinement although chance made it (measured: RMS 3.0
 //   times the refinement's, a third of the keyframe estimate's). That is the price of the
-//   option, which the bench's merges do not pay (README, Configuration); off, the refinement is
-//   reported as it is.
+//   option (README, Configuration, for what it does on the bench's merges); off, the
+//   refinement is reported as it is.
 // The reported covariance (the refinement's, raised by the disagreement) covers the reported
 // estimate: honest, 97 % of the draws under the 7-DoF chi-square 95 % bound, as without the
 // combination; biased, 77 % instead of 67 % without it (one disagreement cannot show all of a
