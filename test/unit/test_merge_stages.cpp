@@ -18,6 +18,7 @@
 #include <tuple>
 
 #include "pcr_pro/geometry/similarity_fit.h"
+#include "pcr_pro/io/report.h"
 #include "pcr_pro/merge/merge_pipeline.h"
 #include "pcr_pro/registration/cloud_registration.h"
 #include "pcr_pro/registration/filters.h"
@@ -787,6 +788,7 @@ TEST(DriftingWorld, AKeptRefinementIsCombinedWithTheKeyframeEstimate) {
   EXPECT_TRUE(r.diagnostics.refinement_kept);
   EXPECT_TRUE(r.diagnostics.combined);
   EXPECT_NE(r.report.message.find("combined with the keyframe estimate"), std::string::npos) << r.report.message;
+  EXPECT_NE(toYaml(r.report).find("refinement: {kept: true, combined: true"), std::string::npos);
   const double combined = rotationDistance(r.report.transform->rotation(), truth.rotation());
   const double refined = rotationDistance(r.diagnostics.refined.rotation(), truth.rotation());
   const double keyframe = rotationDistance(r.diagnostics.initial.rotation(), truth.rotation());
@@ -802,6 +804,7 @@ TEST(DriftingWorld, AKeptRefinementIsCombinedWithTheKeyframeEstimate) {
   ASSERT_EQ(u.report.status, Status::kOk) << u.report.message;
   EXPECT_FALSE(u.diagnostics.combined);
   EXPECT_EQ(u.report.message.find("combined"), std::string::npos) << u.report.message;
+  EXPECT_NE(toYaml(u.report).find("refinement: {kept: true, chi2:"), std::string::npos);
   EXPECT_TRUE(u.report.transform->matrix().isApprox(u.diagnostics.refined.matrix(), 1e-12));
   EXPECT_TRUE(u.report.transform->matrix().isApprox(r.diagnostics.refined.matrix(), 1e-9));
 }

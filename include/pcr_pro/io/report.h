@@ -78,6 +78,9 @@ struct RegistrationReport {
   std::optional<Matrix6d> keyframe_covariance;      ///< its 6x6 covariance (same convention)
   std::optional<double> keyframe_scale_stddev;      ///< its scale's standard deviation [-]
   std::optional<bool> refinement_kept;              ///< the refined estimate is the result
+  /// ... combined with the keyframe estimate (merge.combine_with_keyframe_estimate): the result is
+  /// their information-weighted mean, not the refined estimate itself
+  std::optional<bool> refinement_combined;
   std::optional<double> refinement_chi2;            ///< squared Mahalanobis distance refined vs keyframe [-]
   /// The refinement registered the target onto the source and inverted the result (the source
   /// map was the noisier one: icp.sampling.register_noisier_as_target); absent or false otherwise.

@@ -70,6 +70,7 @@ std::string toYaml(const RegistrationReport& r) {
   }
   if (r.refinement_kept) {
     os << "refinement: {kept: " << (*r.refinement_kept ? "true" : "false");
+    if (r.refinement_combined && *r.refinement_combined) os << ", combined: true";
     if (r.refinement_chi2) os << ", chi2: " << *r.refinement_chi2;
     if (r.refinement_reversed && *r.refinement_reversed) os << ", reversed: true";
     os << "}\n";

@@ -174,6 +174,7 @@ void recordVerdict(const GateVerdict& verdict, RegistrationReport* rep, MergeDia
   diag->disagreement_scale = verdict.disagreement_scale;
   rep->overlap = verdict.overlap;
   rep->refinement_kept = verdict.refinement_kept;
+  rep->refinement_combined = verdict.combined;
   rep->refinement_chi2 = verdict.refinement_chi2;
 }
 
