@@ -289,6 +289,90 @@ TEST_F(SimWorld, CachedPairsAreThoseRecomputedAndAChangedKeyframeMissesOnlyItsOw
   EXPECT_EQ(other_camera.pairs_cached, 0);
 }
 
+// A source map that grows by a keyframe (as a running SLAM's does between merges): only the new
+// keyframe's row of votes is computed, against the cached index of the target keyframes, and the
+// preselection is exactly what a front end without caches computes; a grown target map needs a
+// new index and every row again.
+TEST_F(SimWorld, AGrownSourceMapComputesTheVotesOfItsNewKeyframeOnly) {
+  const MergeOptions options;
+  KeyframeFrontEnd front(options);
+  const FrontEndResult first = front.run(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
+  ASSERT_EQ(first.status, Status::kOk) << first.message;
+  ASSERT_GT(first.keyframe_pairs, options.merge.max_candidate_pairs) << "the votes preselect";
+  EXPECT_EQ(first.vote_rows_computed, static_cast<int>(map(1).keyframes.size()));
+  EXPECT_FALSE(first.votes_cached);
+  const FrontEndResult again = front.run(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
+  EXPECT_EQ(again.vote_rows_computed, 0);
+  EXPECT_TRUE(again.votes_cached);
+
+  // One more source keyframe: another view of the room (a target keyframe's image, mirrored).
+  AgentMap grown = map(1);
+  MapKeyframe added = map(0).keyframes.back();
+  added.image = cv::Mat();  // shared with map(0)'s keyframe: flip into a buffer of its own
+  cv::flip(map(0).keyframes.back().image, added.image, 1);
+  added.depth = cv::Mat();
+  added.id = 900000;
+  grown.keyframes.push_back(added);
+  const FrontEndResult after = front.run(grown, map(0), MergeRequest(), "agent_b", "agent_a");
+  ASSERT_EQ(after.status, Status::kOk) << after.message;
+  EXPECT_EQ(after.vote_rows_computed, 1);
+  EXPECT_FALSE(after.votes_cached);
+  KeyframeFrontEnd fresh(options);
+  const FrontEndResult cold = fresh.run(grown, map(0), MergeRequest(), "agent_b", "agent_a");
+  EXPECT_EQ(cold.vote_rows_computed, static_cast<int>(grown.keyframes.size()));
+  ASSERT_EQ(after.pairs.size(), cold.pairs.size());
+  bool added_is_a_candidate = false;
+  for (std::size_t k = 0; k < cold.pairs.size(); ++k) {
+    EXPECT_EQ(after.pairs[k].source->id, cold.pairs[k].source->id) << k;
+    EXPECT_EQ(after.pairs[k].target->id, cold.pairs[k].target->id) << k;
+    EXPECT_EQ(after.pairs[k].votes, cold.pairs[k].votes) << k;
+    added_is_a_candidate |= cold.pairs[k].source->id == added.id;
+  }
+  // The new keyframe's votes counted: it sees the room as its target keyframe does.
+  EXPECT_TRUE(added_is_a_candidate);
+
+  // One more target keyframe: the index is built anew, and every source row with it.
+  AgentMap grown_target = map(0);
+  MapKeyframe added_target = map(1).keyframes.back();
+  added_target.image = cv::Mat();
+  cv::flip(map(1).keyframes.back().image, added_target.image, 1);
+  added_target.depth = cv::Mat();
+  added_target.id = 900001;
+  grown_target.keyframes.push_back(added_target);
+  const FrontEndResult target_grown = front.run(grown, grown_target, MergeRequest(), "agent_b", "agent_a");
+  EXPECT_EQ(target_grown.vote_rows_computed, static_cast<int>(grown.keyframes.size()));
+}
+
+// A row of votes belongs to the index it was computed against: a new index (other target
+// keyframes) drops the rows, and a row stored against an index no longer kept is ignored.
+TEST(PairCache, VoteRowsBelongToTheIndexTheyWereComputedAgainst) {
+  PairCache cache;
+  const FeatureMatchingOptions options;
+  const auto t1 = std::make_shared<const KeyframeFeatures>();
+  const auto t2 = std::make_shared<const KeyframeFeatures>();
+  const auto source = std::make_shared<const KeyframeFeatures>();
+  const auto index = std::make_shared<const KeyframeVoteIndex>(std::vector<const KeyframeFeatures*>{t1.get()}, options);
+  EXPECT_EQ(index->targets(), 1u);
+  cache.storeVoteIndex({t1}, index);
+  EXPECT_EQ(cache.findVoteIndex({t1}), index);
+  EXPECT_EQ(cache.findVoteIndex({t2}), nullptr);
+  EXPECT_EQ(cache.findVoteIndex({t1, t2}), nullptr);
+  const auto row = std::make_shared<const std::vector<int>>(std::vector<int>{3});
+  EXPECT_EQ(cache.findVoteRow(index, source), nullptr);
+  cache.storeVoteRow(index, source, row);
+  EXPECT_EQ(cache.findVoteRow(index, source), row);
+  const auto index2 =
+      std::make_shared<const KeyframeVoteIndex>(std::vector<const KeyframeFeatures*>{t1.get(), t2.get()}, options);
+  cache.storeVoteIndex({t1, t2}, index2);
+  EXPECT_EQ(cache.findVoteIndex({t1}), nullptr);
+  EXPECT_EQ(cache.findVoteRow(index2, source), nullptr);
+  EXPECT_EQ(cache.findVoteRow(index, source), nullptr);
+  cache.storeVoteRow(index, source, row);  // computed against the index before: not kept
+  EXPECT_EQ(cache.findVoteRow(index2, source), nullptr);
+  cache.clear();
+  EXPECT_EQ(cache.findVoteIndex({t1, t2}), nullptr);
+}
+
 // The pair cache is bounded: past PairCache::kMaxPairs entries the least recently used goes.
 TEST(PairCache, KeepsAtMostItsBoundAndDropsTheLeastRecentlyUsed) {
   PairCache cache;

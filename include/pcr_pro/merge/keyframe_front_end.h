@@ -66,8 +66,10 @@ struct CandidatePair {
 
 /**
  * @brief What the front end computed from keyframe images alone, kept across merges: the matches
- * and relative pose of each keyframe pair matched in full, and the last vote matrix of the
- * preselection. Neither depends on keyframe poses, depth or map clouds, which change as the maps
+ * and relative pose of each keyframe pair matched in full, and the preselection's vote index over
+ * the last target keyframes with the votes of each source keyframe against it (a source map that
+ * grows then costs one row of votes per new keyframe; new target keyframes need a new index, and
+ * every row again). None depends on keyframe poses, depth or map clouds, which change as the maps
  * grow. Entries are keyed by the keyframes' features and hold them weakly: a keyframe re-sent with
  * other content, or invalidated in the FeatureCache, gets new features, so every entry made from
  * its old ones misses (and is dropped at the next run). A pair entry also keeps both cameras and
@@ -95,11 +97,17 @@ class PairCache {
                                          const PinholeCamera& target_camera, const PinholeCamera& source_camera);
   void store(const Features& target, const Features& source, const PinholeCamera& target_camera,
              const PinholeCamera& source_camera, std::shared_ptr<const PairResult> result);
-  /// @return the votes last stored for exactly these source and target features (same order), or null
-  std::shared_ptr<const std::vector<std::vector<int>>> findVotes(const std::vector<Features>& sources,
-                                                                 const std::vector<Features>& targets) const;
-  void storeVotes(const std::vector<Features>& sources, const std::vector<Features>& targets,
-                  std::shared_ptr<const std::vector<std::vector<int>>> votes);
+  /// @return the vote index last stored for exactly these target features (same order), or null
+  std::shared_ptr<const KeyframeVoteIndex> findVoteIndex(const std::vector<Features>& targets) const;
+  /// Keeps `index` for these target features; the rows of votes of the index before are dropped.
+  void storeVoteIndex(const std::vector<Features>& targets, std::shared_ptr<const KeyframeVoteIndex> index);
+  /// @return the votes of this source keyframe stored against `index`, or null when absent, made
+  ///   from other features or against another index
+  std::shared_ptr<const std::vector<int>> findVoteRow(const std::shared_ptr<const KeyframeVoteIndex>& index,
+                                                      const Features& source) const;
+  /// Keeps a source keyframe's votes against `index` (ignored when `index` is no longer the one kept).
+  void storeVoteRow(const std::shared_ptr<const KeyframeVoteIndex>& index, const Features& source,
+                    std::shared_ptr<const std::vector<int>> row);
   /// Drops the entries whose features are gone.
   void prune();
   void clear();
@@ -113,9 +121,16 @@ class PairCache {
     std::shared_ptr<const PairResult> result;
     std::uint64_t used = 0;  ///< clock_ at the last find() or store()
   };
+  // The vote index of one set of target keyframes and the rows of votes computed against it,
+  // one per source keyframe's features.
+  struct VoteRow {
+    std::weak_ptr<const KeyframeFeatures> source;
+    std::shared_ptr<const std::vector<int>> votes;
+  };
   struct VoteSlot {
-    std::vector<std::weak_ptr<const KeyframeFeatures>> sources, targets;
-    std::shared_ptr<const std::vector<std::vector<int>>> votes;
+    std::vector<std::weak_ptr<const KeyframeFeatures>> targets;
+    std::shared_ptr<const KeyframeVoteIndex> index;
+    std::map<const KeyframeFeatures*, VoteRow> rows;
   };
   mutable std::mutex mutex_;
   std::map<std::pair<const KeyframeFeatures*, const KeyframeFeatures*>, Slot> slots_;
@@ -146,7 +161,8 @@ struct FrontEndResult {
   int features_computed = 0;
   int features_cached = 0;
   int pairs_cached = 0;        ///< pairs whose matches and relative pose came from the PairCache
-  bool votes_cached = false;   ///< the preselection's votes came from the PairCache
+  bool votes_cached = false;   ///< the preselection's votes came from the PairCache, every row
+  int vote_rows_computed = 0;  ///< source keyframes whose votes were computed (not from the PairCache)
   double features_ms = 0.0;       ///< SIFT and matching
   double relative_pose_ms = 0.0;  ///< RANSAC and refinement of every candidate
 };

@@ -76,6 +76,7 @@ class MergeNode {
     StageTimings stages;      // the pipeline's own (stages.total: the whole pipeline)
     int features_computed = 0, features_cached = 0;  // keyframes whose SIFT was computed / came from the cache
     int pairs_computed = 0, pairs_cached = 0;  // candidate pairs matched and posed / taken from the pair cache
+    int vote_rows_computed = 0;  // source keyframes whose votes of the pair preselection were computed
   };
   struct MergeState {
     bool attempted = false;

@@ -168,48 +168,58 @@ FeatureMatches matchFeatures(const KeyframeFeatures& a, const KeyframeFeatures& 
 std::vector<std::vector<int>> keyframePairVotes(const std::vector<const KeyframeFeatures*>& sources,
                                                 const std::vector<const KeyframeFeatures*>& targets,
                                                 const FeatureMatchingOptions& options) {
-  validate(options);
-  std::vector<std::vector<int>> votes(sources.size(), std::vector<int>(targets.size(), 0));
+  return KeyframeVoteIndex(targets, options).votes(sources);
+}
+
+KeyframeVoteIndex::KeyframeVoteIndex(const std::vector<const KeyframeFeatures*>& targets,
+                                     const FeatureMatchingOptions& options)
+    : options_(options), targets_(targets.size()) {
+  validate(options_);
   std::vector<cv::Mat> parts;
-  std::vector<int> owner;
-  int length = -1;
   for (std::size_t t = 0; t < targets.size(); ++t) {
     const cv::Mat d = usableDescriptors(*targets[t], "target");
     if (d.empty()) continue;
-    if (length >= 0 && d.cols != length) throw InputError("keyframePairVotes: descriptor lengths differ");
-    length = d.cols;
+    if (length_ >= 0 && d.cols != length_) throw InputError("keyframePairVotes: descriptor lengths differ");
+    length_ = d.cols;
     parts.push_back(d);
-    owner.insert(owner.end(), static_cast<std::size_t>(d.rows), static_cast<int>(t));
+    owner_.insert(owner_.end(), static_cast<std::size_t>(d.rows), static_cast<int>(t));
   }
-  if (owner.size() < 2) return votes;
+  if (owner_.size() < 2) return;
   cv::Mat all;
   cv::vconcat(parts, all);
-  const DescriptorIndex index(all, options.flann_trees, options.seed);
+  index_ = std::make_unique<DescriptorIndex>(all, options_.flann_trees, options_.seed);
+}
+
+KeyframeVoteIndex::~KeyframeVoteIndex() = default;
+
+std::vector<std::vector<int>> KeyframeVoteIndex::votes(const std::vector<const KeyframeFeatures*>& sources) const {
+  std::vector<std::vector<int>> votes(sources.size(), std::vector<int>(targets_, 0));
+  if (!index_) return votes;
   std::vector<cv::Mat> queries;
   for (std::size_t s = 0; s < sources.size(); ++s) {
     queries.push_back(usableDescriptors(*sources[s], "source"));
-    if (!queries.back().empty() && queries.back().cols != length) {
+    if (!queries.back().empty() && queries.back().cols != length_) {
       throw InputError("keyframePairVotes: descriptor lengths differ");
     }
   }
   // The ratio test on distances, compared squared: d0 < r * dk  <=>  d0^2 < r^2 * dk^2.
-  const float ratio2 = static_cast<float>(options.ratio_test * options.ratio_test);
+  const float ratio2 = static_cast<float>(options_.ratio_test * options_.ratio_test);
   // Each source keyframe's row of votes on its own thread (a searcher per thread; the index is
-  // only read): the same votes as in turn.
+  // only read): the same votes as in turn, and as each row alone.
 #pragma omp parallel
   {
-    DescriptorIndex::Searcher searcher(index);
+    DescriptorIndex::Searcher searcher(*index_);
     std::vector<DescriptorNeighbor> m;
 #pragma omp for schedule(dynamic)
     for (std::size_t s = 0; s < sources.size(); ++s) {
       const cv::Mat& q = queries[s];
       for (int row = 0; row < q.rows; ++row) {
-        searcher.knn(q.ptr<float>(row), 4, options.flann_checks, &m);
+        searcher.knn(q.ptr<float>(row), 4, options_.flann_checks, &m);
         if (m.empty()) continue;
-        const int best = owner[static_cast<std::size_t>(m[0].index)];
+        const int best = owner_[static_cast<std::size_t>(m[0].index)];
         bool accept = true;
         for (std::size_t k = 1; k < m.size(); ++k) {
-          if (owner[static_cast<std::size_t>(m[k].index)] != best) {
+          if (owner_[static_cast<std::size_t>(m[k].index)] != best) {
             accept = m[0].squared_distance < ratio2 * m[k].squared_distance;
             break;
           }

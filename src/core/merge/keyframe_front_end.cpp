@@ -123,17 +123,32 @@ void PairCache::store(const Features& target, const Features& source, const Pinh
   }
 }
 
-std::shared_ptr<const std::vector<std::vector<int>>> PairCache::findVotes(const std::vector<Features>& sources,
-                                                                          const std::vector<Features>& targets) const {
+std::shared_ptr<const KeyframeVoteIndex> PairCache::findVoteIndex(const std::vector<Features>& targets) const {
   std::lock_guard<std::mutex> lock(mutex_);
-  if (!votes_.votes || !sameFeatures(votes_.sources, sources) || !sameFeatures(votes_.targets, targets)) return nullptr;
-  return votes_.votes;
+  if (!votes_.index || !sameFeatures(votes_.targets, targets)) return nullptr;
+  return votes_.index;
 }
 
-void PairCache::storeVotes(const std::vector<Features>& sources, const std::vector<Features>& targets,
-                           std::shared_ptr<const std::vector<std::vector<int>>> votes) {
+void PairCache::storeVoteIndex(const std::vector<Features>& targets, std::shared_ptr<const KeyframeVoteIndex> index) {
   std::lock_guard<std::mutex> lock(mutex_);
-  votes_ = VoteSlot{{sources.begin(), sources.end()}, {targets.begin(), targets.end()}, std::move(votes)};
+  votes_ = VoteSlot{{targets.begin(), targets.end()}, std::move(index), {}};
+}
+
+std::shared_ptr<const std::vector<int>> PairCache::findVoteRow(const std::shared_ptr<const KeyframeVoteIndex>& index,
+                                                               const Features& source) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!index || votes_.index != index) return nullptr;
+  const auto it = votes_.rows.find(source.get());
+  // An expired pointer means the features at that address are new ones (a re-sent keyframe).
+  if (it == votes_.rows.end() || it->second.source.lock() != source) return nullptr;
+  return it->second.votes;
+}
+
+void PairCache::storeVoteRow(const std::shared_ptr<const KeyframeVoteIndex>& index, const Features& source,
+                             std::shared_ptr<const std::vector<int>> row) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!index || votes_.index != index) return;
+  votes_.rows[source.get()] = VoteRow{source, std::move(row)};
 }
 
 void PairCache::prune() {
@@ -141,6 +156,9 @@ void PairCache::prune() {
   for (auto it = slots_.begin(); it != slots_.end();) {
     const bool gone = it->second.target.expired() || it->second.source.expired();
     it = gone ? slots_.erase(it) : std::next(it);
+  }
+  for (auto it = votes_.rows.begin(); it != votes_.rows.end();) {
+    it = it->second.source.expired() ? votes_.rows.erase(it) : std::next(it);
   }
 }
 
@@ -258,16 +276,34 @@ FrontEndResult KeyframeFrontEnd::run(const AgentMap& source, const AgentMap& tar
   std::vector<std::vector<int>> votes;
   const auto max_pairs = static_cast<std::size_t>(options_.merge.max_candidate_pairs);
   if (max_pairs > 0 && pairs.size() > max_pairs) {
-    if (const auto cached = pair_cache_.findVotes(src_features, tgt_features)) {
-      votes = *cached;
-      out.votes_cached = true;
-    } else {
-      std::vector<const KeyframeFeatures*> sf, tf;
-      for (const auto& f : src_features) sf.push_back(f.get());
+    // The index over the target keyframes, and each source keyframe's row of votes against it,
+    // from the cache where they are there (a row is what the index gives that keyframe alone).
+    std::shared_ptr<const KeyframeVoteIndex> index = pair_cache_.findVoteIndex(tgt_features);
+    const bool index_cached = index != nullptr;
+    if (!index) {
+      std::vector<const KeyframeFeatures*> tf;
       for (const auto& f : tgt_features) tf.push_back(f.get());
-      votes = keyframePairVotes(sf, tf, options_.matching);
-      pair_cache_.storeVotes(src_features, tgt_features, std::make_shared<const std::vector<std::vector<int>>>(votes));
+      index = std::make_shared<const KeyframeVoteIndex>(tf, options_.matching);
+      pair_cache_.storeVoteIndex(tgt_features, index);
     }
+    votes.resize(src.size());
+    std::vector<std::size_t> missing;
+    std::vector<const KeyframeFeatures*> missing_features;
+    for (std::size_t i = 0; i < src.size(); ++i) {
+      if (const auto row = pair_cache_.findVoteRow(index, src_features[i])) {
+        votes[i] = *row;
+      } else {
+        missing.push_back(i);
+        missing_features.push_back(src_features[i].get());
+      }
+    }
+    const std::vector<std::vector<int>> rows = index->votes(missing_features);
+    for (std::size_t k = 0; k < missing.size(); ++k) {
+      votes[missing[k]] = rows[k];
+      pair_cache_.storeVoteRow(index, src_features[missing[k]], std::make_shared<const std::vector<int>>(rows[k]));
+    }
+    out.vote_rows_computed = static_cast<int>(missing.size());
+    out.votes_cached = index_cached && missing.empty();
     std::stable_sort(pairs.begin(), pairs.end(), [&](const auto& a, const auto& b) {
       return votes[a.first][a.second] > votes[b.first][b.second];
     });
