@@ -150,6 +150,7 @@ void warmCache(std::FILE* md, const TimingCase& tc, int count, std::FILE* headli
   // A running SLAM adds keyframes between merges: one more source keyframe (the first one's image
   // under a new id), so its SIFT, its row of votes and its pairs are computed, everything else
   // (the target keyframes' vote index included) comes from the caches.
+  const std::size_t source_keyframes = source.keyframes.size();  // of the first two merges
   MapKeyframe added = source.keyframes.front();
   added.id = 1000000;
   source.keyframes.push_back(added);
@@ -165,7 +166,7 @@ void warmCache(std::FILE* md, const TimingCase& tc, int count, std::FILE* headli
                    "computed | pairs matched in full / all | of those, from the pair cache | features [ms] | relative "
                    "pose [ms] | total [ms] | status |\n"
                    "|---|---|---|---|---|---|---|---|---|\n",
-               source.keyframes.size() - 1, target.keyframes.size());
+               source_keyframes, target.keyframes.size());
   for (const auto& [name, r, ms] : {std::make_tuple("first (cold cache)", &cold, cold_ms),
                                     std::make_tuple("second (warm cache)", &warm, warm_ms),
                                     std::make_tuple("third (one more source keyframe)", &grown, grown_ms)}) {
@@ -179,7 +180,7 @@ void warmCache(std::FILE* md, const TimingCase& tc, int count, std::FILE* headli
   std::fprintf(headline, "- Second merge over %zu × %zu keyframes with the warm caches: **%.0f ms** against "
                          "%.0f ms cold (%.1f× faster), SIFT computed for %d keyframes (must be 0: **%s**), %d of %d "
                          "candidate pairs from the pair cache; same answer: %s.\n",
-               source.keyframes.size(), target.keyframes.size(), warm_ms, cold_ms, cold_ms / std::max(warm_ms, 1.0),
+               source_keyframes, target.keyframes.size(), warm_ms, cold_ms, cold_ms / std::max(warm_ms, 1.0),
                warm.diagnostics.features_computed, warm.diagnostics.features_computed == 0 ? "met" : "NOT met",
                warm.diagnostics.pairs_cached, warm.diagnostics.candidate_pairs,
                cold.report.transform && warm.report.transform &&
