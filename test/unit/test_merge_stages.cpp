@@ -305,13 +305,18 @@ TEST_F(SimWorld, AGrownSourceMapComputesTheVotesOfItsNewKeyframeOnly) {
   EXPECT_EQ(again.vote_rows_computed, 0);
   EXPECT_TRUE(again.votes_cached);
 
-  // One more source keyframe: another view of the room (a target keyframe's image, mirrored).
+  // Another view of the room: a keyframe's image mirrored, under a new id, without depth.
+  const auto mirrored = [](const MapKeyframe& of, long id) {
+    MapKeyframe k = of;
+    k.image = cv::Mat();  // shared with `of`: flip into a buffer of its own
+    cv::flip(of.image, k.image, 1);
+    k.depth = cv::Mat();
+    k.id = id;
+    return k;
+  };
+  // One more source keyframe (a target keyframe's view).
   AgentMap grown = map(1);
-  MapKeyframe added = map(0).keyframes.back();
-  added.image = cv::Mat();  // shared with map(0)'s keyframe: flip into a buffer of its own
-  cv::flip(map(0).keyframes.back().image, added.image, 1);
-  added.depth = cv::Mat();
-  added.id = 900000;
+  const MapKeyframe added = mirrored(map(0).keyframes.back(), 900000);
   grown.keyframes.push_back(added);
   const FrontEndResult after = front.run(grown, map(0), MergeRequest(), "agent_b", "agent_a");
   ASSERT_EQ(after.status, Status::kOk) << after.message;
@@ -333,12 +338,7 @@ TEST_F(SimWorld, AGrownSourceMapComputesTheVotesOfItsNewKeyframeOnly) {
 
   // One more target keyframe: the index is built anew, and every source row with it.
   AgentMap grown_target = map(0);
-  MapKeyframe added_target = map(1).keyframes.back();
-  added_target.image = cv::Mat();
-  cv::flip(map(1).keyframes.back().image, added_target.image, 1);
-  added_target.depth = cv::Mat();
-  added_target.id = 900001;
-  grown_target.keyframes.push_back(added_target);
+  grown_target.keyframes.push_back(mirrored(map(1).keyframes.back(), 900001));
   const FrontEndResult target_grown = front.run(grown, grown_target, MergeRequest(), "agent_b", "agent_a");
   EXPECT_EQ(target_grown.vote_rows_computed, static_cast<int>(grown.keyframes.size()));
 }
