@@ -41,7 +41,8 @@ def readme_block(path):
         raise ValueError(f"{path}: no code block after 'Typical output'")
     sections, title = {}, None
     for line in text[fence + 3:end].splitlines():
-        if line.startswith("== "):
+        # A section starts at each "== " title; "== exit status N" belongs to the section above.
+        if line.startswith("== ") and not line.startswith("== exit status"):
             title = line
             sections[title] = []
         elif title is not None and line.strip():
