@@ -36,7 +36,6 @@ struct MergeDiagnostics {
   int features_computed = 0;       ///< keyframes whose SIFT features were computed by this merge
   int features_cached = 0;         ///< keyframes whose features came from the cache
   int pairs_cached = 0;            ///< candidate pairs whose matches and relative pose came from the cache
-  bool votes_cached = false;       ///< the vote preselection came from the cache, every row
   int vote_rows_computed = 0;      ///< source keyframes whose votes were computed (KeyframeFrontEnd, PairCache)
   int feature_matches = 0;         ///< good SIFT matches of the anchor pair
   int relative_pose_inliers = 0;   ///< OpenGV inliers of the anchor pair

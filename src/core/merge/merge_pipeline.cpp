@@ -97,7 +97,6 @@ void recordFrontEnd(const FrontEndResult& front, RegistrationReport* rep, MergeD
   diag->features_computed = front.features_computed;
   diag->features_cached = front.features_cached;
   diag->pairs_cached = front.pairs_cached;
-  diag->votes_cached = front.votes_cached;
   diag->vote_rows_computed = front.vote_rows_computed;
 }
 
