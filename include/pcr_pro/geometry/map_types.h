@@ -32,6 +32,8 @@ struct PinholeCamera {
 
 /// A keyframe of one agent. (Not named `Keyframe`: the ROS message pcr_pro/Keyframe is the C++
 /// type pcr_pro::Keyframe, and both must compile in one translation unit of the ROS layer.)
+/// A copy shares its images' pixels with the original (cv::Mat copies are shallow): replace an
+/// image (assign a new cv::Mat, or clone() first) rather than writing into a copy's pixels.
 struct MapKeyframe {
   long id = 0;
   cv::Mat image;  ///< 8-bit grey (CV_8UC1), the camera's rectified image
