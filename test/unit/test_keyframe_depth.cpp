@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <limits>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -232,6 +233,46 @@ TEST(KeyframeDepthTest, DepthImageAgreesWithProjectedCloud) {
   EXPECT_FALSE(from_image_zero.pointAt(kPlaneU0 + 8, kPlaneV0 + 8, &p));
   EXPECT_FALSE(from_image_zero.pointAt(kPlaneU0 + 8, kPlaneV0 + 9, &p));
   EXPECT_TRUE(from_image_zero.pointAt(kPlaneU0 + 9, kPlaneV0 + 9, &p));
+}
+
+// The plane seen at every pixel, each point moved along its ray by a relative depth error of
+// standard deviation `sigma` (as a semi-dense map's inverse-depth noise moves it); pixels with
+// u >= step_u lie `step` times farther (a depth edge), when step != 1.
+std::vector<Eigen::Vector3d> noisyDensePlane(const PinholeCamera& cam, double sigma, int step_u, double step) {
+  std::mt19937 rng(5);
+  std::normal_distribution<double> g(0.0, sigma);
+  std::vector<Eigen::Vector3d> pts;
+  for (int v = kPlaneV0; v <= kPlaneV1; ++v) {
+    for (int u = kPlaneU0; u <= kPlaneU1; ++u) {
+      const double z = planeDepth(cam, u, v) * (u >= step_u ? step : 1.0) * (1.0 + g(rng));
+      pts.push_back(cameraPoint(cam, u, v, z));
+    }
+  }
+  return pts;
+}
+
+// The projected cloud's depth noise, measured between pixels within the lookup radius, is the
+// noise each point was given; a depth edge through the middle of the plane does not move it;
+// a depth image, or a cloud too sparse for pixel pairs within the radius, measures none.
+TEST(KeyframeDepthTest, TheProjectedCloudMeasuresItsOwnDepthNoise) {
+  const PinholeCamera cam = testCamera();
+  const MapKeyframe kf = testKeyframe();
+  for (const double sigma : {0.005, 0.02, 0.06}) {
+    const KeyframeDepth depth(kf, cam, toMapCloud(kf, noisyDensePlane(cam, sigma, kPlaneU1 + 1, 1.0)));
+    EXPECT_NEAR(depth.projectedRelativeNoise(), sigma, 0.05 * sigma) << "sigma " << sigma;
+    const KeyframeDepth edge(kf, cam, toMapCloud(kf, noisyDensePlane(cam, sigma, (kPlaneU0 + kPlaneU1) / 2, 1.5)));
+    EXPECT_NEAR(edge.projectedRelativeNoise(), sigma, 0.1 * sigma) << "sigma " << sigma << " with a depth edge";
+  }
+  // The noise-free plane: only its slope over 1-2 pixels (0.03 %).
+  const KeyframeDepth clean(kf, cam, toMapCloud(kf, noisyDensePlane(cam, 0.0, kPlaneU1 + 1, 1.0)));
+  EXPECT_GT(clean.projectedRelativeNoise(), 0.0);
+  EXPECT_LT(clean.projectedRelativeNoise(), 1e-3);
+  // A point every 4 pixels: no two within the 2-pixel radius.
+  const KeyframeDepth sparse(kf, cam, toMapCloud(kf, planeCameraPoints(cam)));
+  EXPECT_EQ(sparse.projectedRelativeNoise(), 0.0);
+  MapKeyframe with_image = kf;
+  with_image.depth = renderDepth(cam);
+  EXPECT_EQ(KeyframeDepth(with_image, cam, Cloud(3, 0)).projectedRelativeNoise(), 0.0);
 }
 
 TEST(KeyframeDepthTest, DepthRangeLimitsApply) {

@@ -73,6 +73,35 @@ void projectCloud(const Sim3& pose, const Cloud& map_cloud, const PinholeCamera&
   }
 }
 
+// The robust relative depth noise of one pixel of `depth` (KeyframeDepth::projectedRelativeNoise()):
+// the pairs of valid pixels at the forward `offsets` (each unordered pair once), 0 with fewer than
+// min_pairs of them.
+double relativeNoise(const std::vector<float>& depth, int width, int height,
+                     const std::vector<Eigen::Vector2i>& offsets, std::size_t min_pairs) {
+  std::vector<Eigen::Vector2i> forward;
+  for (const Eigen::Vector2i& o : offsets) {
+    if (o.y() > 0 || (o.y() == 0 && o.x() > 0)) forward.push_back(o);
+  }
+  std::vector<double> differences;
+  for (int row = 0; row < height; ++row) {
+    for (int col = 0; col < width; ++col) {
+      const double z1 = depth[static_cast<size_t>(row) * static_cast<size_t>(width) + static_cast<size_t>(col)];
+      if (!(z1 > 0.0)) continue;
+      for (const Eigen::Vector2i& o : forward) {
+        const int c = col + o.x(), r = row + o.y();
+        if (c < 0 || c >= width || r >= height) continue;
+        const double z2 = depth[static_cast<size_t>(r) * static_cast<size_t>(width) + static_cast<size_t>(c)];
+        if (z2 > 0.0) differences.push_back(2.0 * std::abs(z1 - z2) / (z1 + z2));
+      }
+    }
+  }
+  if (differences.size() < min_pairs) return 0.0;
+  const auto mid = differences.begin() + static_cast<std::ptrdiff_t>(differences.size() / 2);
+  std::nth_element(differences.begin(), mid, differences.end());
+  // 1.4826 x median |d| is the standard deviation of a Gaussian d; d is two pixels' noise.
+  return 1.4826 * *mid / std::sqrt(2.0);
+}
+
 }  // namespace
 
 template <>
@@ -142,6 +171,9 @@ KeyframeDepth::KeyframeDepth(const MapKeyframe& keyframe, const PinholeCamera& c
     for (int dx = -r; dx <= r; ++dx) {
       if (dx * dx + dy * dy <= r * r) offsets_.emplace_back(dx, dy);
     }
+  }
+  if (!uses_depth_image_) {
+    projected_relative_noise_ = relativeNoise(depth_, camera_.width, camera_.height, offsets_, kMinNoisePairs);
   }
 }
 
