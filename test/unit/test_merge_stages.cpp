@@ -8,6 +8,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -17,6 +18,7 @@
 #include <string>
 #include <tuple>
 
+#include "pcr_pro/frontend/keyframe_depth.h"
 #include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/io/report.h"
 #include "pcr_pro/merge/merge_pipeline.h"
@@ -645,6 +647,70 @@ void dropDepthImages(Simulation* sim) {
   }
 }
 
+double medianOf(std::vector<double> v) {
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+// The map cloud projected into a keyframe measures its own depth noise
+// (KeyframeDepth::projectedRelativeNoise()): on the bench's semi-dense maps, against the
+// simulator's true depth, it lies within the spread of the lookups' true errors at either noise
+// level; the configured 2 % would be 2.5-3 times too small at inverse-depth noise 0.03.
+TEST(NoisyCloud, TheProjectedCloudMeasuresTheDepthNoiseItsLookupsHave) {
+  for (const double noise : {0.01, 0.03}) {
+    const Simulation sim = simulate(test::benchWorldOptions(0.35, 0.025, noise, 0, false));
+    const AgentMap& map = sim.agents[0].map;
+    std::vector<double> measured, errors;
+    for (std::size_t k = 0; k < map.keyframes.size(); k += 4) {
+      const MapKeyframe& truth = map.keyframes[k];
+      MapKeyframe without = truth;
+      without.depth = cv::Mat();
+      const KeyframeDepth depth(without, map.camera, map.cloud);
+      ASSERT_GT(depth.projectedRelativeNoise(), 0.0) << "keyframe " << truth.id;
+      measured.push_back(depth.projectedRelativeNoise());
+      // Lookups on a pixel grid, against the rendered (exact) depth.
+      for (int v = 4; v < map.camera.height; v += 4) {
+        for (int u = 4; u < map.camera.width; u += 4) {
+          double z = 0.0;
+          const float zt = truth.depth.at<float>(v, u);
+          if (zt > 0.0f && depth.depthAt(u, v, &z)) errors.push_back(std::abs(z / zt - 1.0));
+        }
+      }
+    }
+    ASSERT_GT(errors.size(), 1000u);
+    const double spread = 1.4826 * medianOf(errors);  // robust: depth edges are outliers
+    const double mid = medianOf(measured);
+    EXPECT_GT(mid, 0.7 * spread) << "noise " << noise;
+    EXPECT_LT(mid, 1.1 * spread) << "noise " << noise;
+  }
+}
+
+// With depth from the projected cloud, the keyframe matches' depth noise is the larger of the
+// measured one and scale_estimation.relative_depth_noise: where the cloud is noisier than the
+// configured noise (inverse-depth noise 0.03, about 5 %), a smaller configured noise changes
+// nothing, and a larger one widens the keyframe estimate's covariance.
+TEST(NoisyCloud, TheKeyframeMatchesCarryTheNoiseTheCloudMeasures) {
+  Simulation sim = simulate(test::benchWorldOptions(0.35, 0.025, 0.03, 0, false));
+  dropDepthImages(&sim);
+  const AgentMap& a = sim.agents[0].map;
+  const AgentMap& b = sim.agents[1].map;
+  const auto estimate = [&](double relative_depth_noise) {
+    MergeOptions options;
+    options.scale_estimation.relative_depth_noise = relative_depth_noise;
+    const FrontEndResult front = KeyframeFrontEnd(options).run(b, a, MergeRequest());
+    return SimilarityInitializer(options).run(b, a, front);
+  };
+  const KeyframeEstimate configured = estimate(0.02), smaller = estimate(0.002), larger = estimate(0.2);
+  ASSERT_EQ(configured.status, Status::kOk) << configured.message;
+  ASSERT_EQ(smaller.status, Status::kOk) << smaller.message;
+  ASSERT_EQ(larger.status, Status::kOk) << larger.message;
+  EXPECT_TRUE(smaller.estimate.matrix().isApprox(configured.estimate.matrix(), 1e-12));
+  EXPECT_TRUE(smaller.mean_covariance.isApprox(configured.mean_covariance, 1e-9))
+      << "configured:\n" << configured.mean_covariance << "\nsmaller:\n" << smaller.mean_covariance;
+  EXPECT_GT(larger.mean_covariance.trace(), 2.0 * configured.mean_covariance.trace());
+}
+
 // Expects every verified pair with a wrong relative pose to be reported unused and every other
 // one used. @return how many were wrong
 int expectOnlyTheRightPairsUsed(const Simulation& sim, const FrontEndResult& front, const MergeResult& r) {
@@ -798,16 +864,20 @@ TEST(LowOverlapWorld, WithLsdKeyframeDepthPlanarTwinsTheirOwnMatchesCannotExpose
   EXPECT_LT(poseNees(r, truth), kChi2Six95);
 }
 
-// The camp arbitration (arbitrate() in merge_pipeline.cpp) where it still decides: the bench
-// world of 15 % overlap, 2.5 % drift and inverse-depth noise 0.03, seed 1, without depth images.
-// Three pairs pool to an estimate 2.7 % off in scale (outside the 1.5 % floor); the refinement
-// from it, 3.5 deg away, disagrees with the keyframe matches (chi-square 60.5) and is not kept.
-// The closed camp of two of the pairs is refined again (not kept either), and its estimate, 0.35
-// deg and 0.9 % off, overlaps the clouds more than the pooled one: it is reported, and the report
-// says the pairs split. Without the arbitration of a merge whose refinement was not kept, the
-// 2.7 % estimate is reported (measured by disabling it: this test then fails).
-TEST(LowOverlapWorld, WhenThePairsSplitAndTheRefinementIsNotKeptTheCampTheCloudsSideWithIsReported) {
-  Simulation sim = simulate(test::benchWorldOptions(0.15, 0.025, 0.03, 1, false));
+// The camp arbitration (arbitrate() in merge_pipeline.cpp): when the refinement from the pooled
+// keyframe estimate fails or is not kept, the pairs are pooled again around each pair's own
+// estimate; a closed camp whose refinement the gates pass replaces the pooled estimate. It used
+// to decide on the bench world of 15 % overlap, 2.5 % drift and inverse-depth noise 0.03, seed 1,
+// without depth images (three pairs pooled 2.7 % off in scale). Since the projected cloud's depth
+// noise is measured (about 5 % there, not the configured 2 %), those pairs no longer split and
+// the pooled estimate is reported there (test below). Of 240 bench-like worlds searched (15 and
+// 25 % overlap, 2.5 and 5 % drift, noise 0.02-0.04, seeds 0-9, with LSD depth and without depth
+// images) it decides on two, both without depth images, and on both it moved the estimate away
+// from the truth: pooled 0.73 deg / -0.4 %, reported 1.11 deg / -0.75 % (this world); pooled
+// 0.82 deg, reported 2.19 deg (noise 0.04, seed 9). What is checked here is what it must still
+// give: a split said so, and an estimate its covariance covers.
+TEST(LowOverlapWorld, WhenThePairsSplitTheCampTheCloudsSideWithIsReportedWithinItsCovariance) {
+  Simulation sim = simulate(test::benchWorldOptions(0.15, 0.05, 0.02, 2, false));
   dropDepthImages(&sim);
   const AgentMap& a = sim.agents[0].map;
   const AgentMap& b = sim.agents[1].map;
@@ -815,6 +885,23 @@ TEST(LowOverlapWorld, WhenThePairsSplitAndTheRefinementIsNotKeptTheCampTheClouds
   const MergeResult r = mergeMaps(b, a, MergeRequest(), MergeOptions());
   ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
   EXPECT_NE(r.report.message.find("the keyframe pairs split"), std::string::npos) << r.report.message;
+  ASSERT_TRUE(r.report.transform && r.report.covariance);
+  EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.5));
+  EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
+  EXPECT_LT(poseNees(r, truth), kChi2Six95);
+}
+
+// The bench world where the camp arbitration used to decide (above): its pooled estimate, with
+// the depth noise the projected cloud measures, is within the floors, and reported.
+TEST(LowOverlapWorld, OnTheNoisiestLowOverlapWorldWithoutDepthImagesThePooledEstimateIsReported) {
+  Simulation sim = simulate(test::benchWorldOptions(0.15, 0.025, 0.03, 1, false));
+  dropDepthImages(&sim);
+  const AgentMap& a = sim.agents[0].map;
+  const AgentMap& b = sim.agents[1].map;
+  const Sim3& truth = sim.pair(0, 1).target_source;
+  const MergeResult r = mergeMaps(b, a, MergeRequest(), MergeOptions());
+  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
+  EXPECT_EQ(r.report.message.find("the keyframe pairs split"), std::string::npos) << r.report.message;
   ASSERT_TRUE(r.report.transform && r.report.covariance);
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.0));
   EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);

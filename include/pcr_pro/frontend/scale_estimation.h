@@ -27,7 +27,9 @@ namespace pcr_pro {
 /// Options of the scale estimation stage.
 struct ScaleEstimationOptions {
   /// Standard deviation of a point's depth noise along its viewing ray, as a fraction of the
-  /// point's distance from the camera [-], > 0.
+  /// point's distance from the camera [-], > 0. For depth looked up in the map cloud projected
+  /// into a keyframe it is the least: the merge takes the cloud's measured noise when larger
+  /// (KeyframeDepth::projectedRelativeNoise()).
   double relative_depth_noise = 0.02;
   /// Standard deviation of a point's noise across its viewing ray, as a fraction of its distance
   /// [-], > 0 (pixel error / focal length: 1 px at f = 500 px is 0.002).

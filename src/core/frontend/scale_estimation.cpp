@@ -90,7 +90,9 @@ const ParamSchema<ScaleEstimationOptions>& paramSchema<ScaleEstimationOptions>()
   using O = ScaleEstimationOptions;
   using R = ParamRange;
   static const ParamSchema<O> schema{"scale_estimation", {
-      {"relative_depth_noise", &O::relative_depth_noise, R::above(0), "-", "depth noise as a fraction of the distance"},
+      {"relative_depth_noise", &O::relative_depth_noise, R::above(0), "-",
+       "depth noise as a fraction of the distance; with depth from the projected map cloud, the least (the cloud's "
+       "measured noise when larger)"},
       {"relative_lateral_noise", &O::relative_lateral_noise, R::above(0), "-",
        "noise across the ray as a fraction of the distance"},
       {"gating_chi2", &O::gating_chi2, R::above(0), "-", "innovation gate, chi-square with 3 DoF (11.34 = 99 %)"},
