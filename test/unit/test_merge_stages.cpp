@@ -864,6 +864,23 @@ TEST(LowOverlapWorld, WithLsdKeyframeDepthPlanarTwinsTheirOwnMatchesCannotExpose
   EXPECT_LT(poseNees(r, truth), kChi2Six95);
 }
 
+// A bench world merged b into a without depth images: whether its keyframe pairs split (the
+// report says so), its rotation within max_rotation_deg and scale within 1.5 % of the truth,
+// and the truth inside the reported covariance.
+void expectBenchWorldWithoutDepthImages(double overlap, double drift, double noise, int seed, bool split,
+                                        double max_rotation_deg) {
+  Simulation sim = simulate(test::benchWorldOptions(overlap, drift, noise, seed, false));
+  dropDepthImages(&sim);
+  const Sim3& truth = sim.pair(0, 1).target_source;
+  const MergeResult r = mergeMaps(sim.agents[1].map, sim.agents[0].map, MergeRequest(), MergeOptions());
+  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
+  EXPECT_EQ(r.report.message.find("the keyframe pairs split") != std::string::npos, split) << r.report.message;
+  ASSERT_TRUE(r.report.transform && r.report.covariance);
+  EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(max_rotation_deg));
+  EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
+  EXPECT_LT(poseNees(r, truth), kChi2Six95);
+}
+
 // The camp arbitration (arbitrate() in merge_pipeline.cpp): when the refinement from the pooled
 // keyframe estimate fails or is not kept, the pairs are pooled again around each pair's own
 // estimate; a closed camp whose refinement the gates pass replaces the pooled estimate. It used
@@ -877,35 +894,13 @@ TEST(LowOverlapWorld, WithLsdKeyframeDepthPlanarTwinsTheirOwnMatchesCannotExpose
 // 0.82 deg, reported 2.19 deg (noise 0.04, seed 9). What is checked here is what it must still
 // give: a split said so, and an estimate its covariance covers.
 TEST(LowOverlapWorld, WhenThePairsSplitTheCampTheCloudsSideWithIsReportedWithinItsCovariance) {
-  Simulation sim = simulate(test::benchWorldOptions(0.15, 0.05, 0.02, 2, false));
-  dropDepthImages(&sim);
-  const AgentMap& a = sim.agents[0].map;
-  const AgentMap& b = sim.agents[1].map;
-  const Sim3& truth = sim.pair(0, 1).target_source;
-  const MergeResult r = mergeMaps(b, a, MergeRequest(), MergeOptions());
-  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
-  EXPECT_NE(r.report.message.find("the keyframe pairs split"), std::string::npos) << r.report.message;
-  ASSERT_TRUE(r.report.transform && r.report.covariance);
-  EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.5));
-  EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
-  EXPECT_LT(poseNees(r, truth), kChi2Six95);
+  expectBenchWorldWithoutDepthImages(0.15, 0.05, 0.02, 2, true, 1.5);
 }
 
 // The bench world where the camp arbitration used to decide (above): its pooled estimate, with
 // the depth noise the projected cloud measures, is within the floors, and reported.
 TEST(LowOverlapWorld, OnTheNoisiestLowOverlapWorldWithoutDepthImagesThePooledEstimateIsReported) {
-  Simulation sim = simulate(test::benchWorldOptions(0.15, 0.025, 0.03, 1, false));
-  dropDepthImages(&sim);
-  const AgentMap& a = sim.agents[0].map;
-  const AgentMap& b = sim.agents[1].map;
-  const Sim3& truth = sim.pair(0, 1).target_source;
-  const MergeResult r = mergeMaps(b, a, MergeRequest(), MergeOptions());
-  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
-  EXPECT_EQ(r.report.message.find("the keyframe pairs split"), std::string::npos) << r.report.message;
-  ASSERT_TRUE(r.report.transform && r.report.covariance);
-  EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.0));
-  EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
-  EXPECT_LT(poseNees(r, truth), kChi2Six95);
+  expectBenchWorldWithoutDepthImages(0.15, 0.025, 0.03, 1, false, 1.0);
 }
 
 // The bench world o0.35_d0.050_n0.01_s0 with depth images: each map's scale drifts 5 % and it
