@@ -19,6 +19,7 @@
 #include <tuple>
 
 #include "pcr_pro/frontend/keyframe_depth.h"
+#include "pcr_pro/geometry/median.h"
 #include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/io/report.h"
 #include "pcr_pro/merge/merge_pipeline.h"
@@ -647,12 +648,6 @@ void dropDepthImages(Simulation* sim) {
   }
 }
 
-double medianOf(std::vector<double> v) {
-  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
-}
-
 // The map cloud projected into a keyframe measures its own depth noise
 // (KeyframeDepth::projectedRelativeNoise()): on the bench's semi-dense maps, against the
 // simulator's true depth, it lies within the spread of the lookups' true errors at either noise
@@ -679,8 +674,8 @@ TEST(NoisyCloud, TheProjectedCloudMeasuresTheDepthNoiseItsLookupsHave) {
       }
     }
     ASSERT_GT(errors.size(), 1000u);
-    const double spread = 1.4826 * medianOf(errors);  // robust: depth edges are outliers
-    const double mid = medianOf(measured);
+    const double spread = 1.4826 * upperMedian(errors);  // robust: depth edges are outliers
+    const double mid = upperMedian(measured);
     EXPECT_GT(mid, 0.7 * spread) << "noise " << noise;
     EXPECT_LT(mid, 1.1 * spread) << "noise " << noise;
   }

@@ -5,6 +5,8 @@
 #include <limits>
 #include <string>
 
+#include "pcr_pro/geometry/median.h"
+
 namespace pcr_pro {
 
 namespace {
@@ -96,10 +98,8 @@ double relativeNoise(const std::vector<float>& depth, int width, int height,
     }
   }
   if (differences.size() < min_pairs) return 0.0;
-  const auto mid = differences.begin() + static_cast<std::ptrdiff_t>(differences.size() / 2);
-  std::nth_element(differences.begin(), mid, differences.end());
   // 1.4826 x median |d| is the standard deviation of a Gaussian d; d is two pixels' noise.
-  return 1.4826 * *mid / std::sqrt(2.0);
+  return 1.4826 * upperMedian(&differences) / std::sqrt(2.0);
 }
 
 }  // namespace

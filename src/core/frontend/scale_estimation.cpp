@@ -8,6 +8,8 @@
 #include <numeric>
 #include <sstream>
 
+#include "pcr_pro/geometry/median.h"
+
 namespace pcr_pro {
 
 namespace {
@@ -47,15 +49,6 @@ Eigen::Matrix3d givenOr(const std::vector<Eigen::Matrix3d>* given, size_t i, con
   return pointCovariance(p, sigma_d, sigma_l);
 }
 
-double median(std::vector<double> values) {
-  const size_t mid = values.size() / 2;
-  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(mid), values.end());
-  double m = values[mid];
-  if (values.size() % 2 == 0) {
-    m = 0.5 * (m + *std::max_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(mid)));
-  }
-  return m;
-}
 
 Matrix32d measurementMatrix(const Match& m, const Eigen::Vector3d& t_hat) {
   Matrix32d h;

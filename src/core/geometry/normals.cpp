@@ -6,6 +6,8 @@
 #include <cmath>
 #include <vector>
 
+#include "pcr_pro/geometry/median.h"
+
 namespace pcr_pro {
 
 namespace {
@@ -83,10 +85,7 @@ double surfaceThickness2(const KdTree& tree, int k, Eigen::Index samples) {
     double t2 = 0.0;
     if (normalAt(tree, pts.col(i), k, &idx, &d2, &t2).squaredNorm() > 0.0) values.push_back(t2);
   }
-  if (values.empty()) return 0.0;
-  const auto mid = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
-  std::nth_element(values.begin(), mid, values.end());
-  return *mid;
+  return upperMedian(&values);
 }
 
 double noiseRatio(double scale, double source_thickness2, double target_thickness2) {

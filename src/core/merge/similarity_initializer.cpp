@@ -18,6 +18,7 @@
 
 #include "pcr_pro/frontend/keyframe_depth.h"
 #include "pcr_pro/frontend/relative_pose_covariance.h"
+#include "pcr_pro/geometry/median.h"
 #include "pcr_pro/registration/icp.h"
 
 namespace pcr_pro {
@@ -198,9 +199,7 @@ PairEvidence pairEvidence(const CandidatePair& c, int group, const AgentMap& sou
     for (std::size_t k = 0; k < pt.size(); ++k) {
       if (e.scale.inlier_mask[k]) distances.push_back(pt[k].norm());
     }
-    std::nth_element(distances.begin(), distances.begin() + static_cast<std::ptrdiff_t>(distances.size() / 2),
-                     distances.end());
-    e.baseline_ratio = std::abs(e.scale.lambda) / distances[distances.size() / 2];
+    e.baseline_ratio = std::abs(e.scale.lambda) / upperMedian(&distances);
   }
   const Sim3 keyframe_sim(e.scale.scale, c.pose.rotation, e.scale.lambda * c.pose.translation_direction);
   e.estimate = cam_t * keyframe_sim * cam_s.inverse();

@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "pcr_pro/geometry/median.h"
 #include "pcr_pro/registration/filters.h"
 #include "pcr_pro/geometry/kdtree.h"
 #include "pcr_pro/geometry/normals.h"
@@ -34,13 +35,6 @@ struct MatchContext {
   double spacing = 0.0;            // max(target spacing, scaled source spacing) [target units]
 };
 
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
-}
-
 // The fixed and adaptive distance gates and the trim, on candidate matches (target < 0: rejected).
 std::vector<Match> gateMatches(const std::vector<Match>& all, const IcpOptions& o, double spacing) {
   std::vector<Match> kept;
@@ -54,7 +48,7 @@ std::vector<Match> gateMatches(const std::vector<Match>& all, const IcpOptions& 
   if (o.adaptive_distance_factor > 0.0 && !kept.empty()) {
     std::vector<double> d(kept.size());
     for (std::size_t k = 0; k < kept.size(); ++k) d[k] = std::sqrt(kept[k].d2);
-    const double gate = o.adaptive_distance_factor * std::max(1.4826 * median(d), spacing);
+    const double gate = o.adaptive_distance_factor * std::max(1.4826 * upperMedian(d), spacing);
     const double gate2 = gate * gate;
     kept.erase(std::remove_if(kept.begin(), kept.end(), [gate2](const Match& m) { return m.d2 > gate2; }), kept.end());
   }
@@ -227,8 +221,8 @@ void setLocalNoise(const Eigen::VectorXd& target_t2, const Eigen::VectorXd& sour
     ts[i] = scale * scale * source_t2(p->source[i]);
   }
   const double resolution = std::pow(spacing / kNoiseFloorPerSpacing, 2);
-  const double floor_t = std::max(kLocalThicknessFloor * median(tt), resolution);
-  const double floor_s = std::max(kLocalThicknessFloor * median(ts), resolution);
+  const double floor_t = std::max(kLocalThicknessFloor * upperMedian(tt), resolution);
+  const double floor_s = std::max(kLocalThicknessFloor * upperMedian(ts), resolution);
   std::vector<double> var(n);
   p->phi.assign(n, 0.0);
   for (std::size_t i = 0; i < n; ++i) {
@@ -237,7 +231,7 @@ void setLocalNoise(const Eigen::VectorXd& target_t2, const Eigen::VectorXd& sour
     var[i] = p->reversed[i] ? a + b / k : a / k + b;
     p->phi[i] = var[i] > 0.0 ? moving / var[i] : 0.0;
   }
-  const double typical = median(var);
+  const double typical = upperMedian(var);
   p->precision.assign(n, 1.0);
   if (!(typical > 0.0)) return;
   for (std::size_t i = 0; i < n; ++i) p->precision[i] = var[i] > 0.0 ? typical / var[i] : 1.0;
@@ -250,10 +244,10 @@ void applyPlaneKernel(const IcpOptions& o, double spacing, PlaneSet* p) {
   const bool local = !p->precision.empty();
   // With local noise the kernel sees each residual in units of its own spread.
   for (std::size_t k = 0; k < p->size(); ++k) r[k] = p->residual(k) * (local ? std::sqrt(p->precision[k]) : 1.0);
-  const double center = median(r);
+  const double center = upperMedian(r);
   std::vector<double> dev(r.size());
   for (std::size_t k = 0; k < r.size(); ++k) dev[k] = std::abs(r[k] - center);
-  p->spread = std::max(1.4826 * median(dev), 0.01 * spacing);
+  p->spread = std::max(1.4826 * upperMedian(dev), 0.01 * spacing);
   const bool kernel = o.robust_kernel != RobustKernel::kNone && p->spread > 0.0;
   if (!kernel && !local) return;
   const double c2 = std::pow(o.kernel_width * p->spread, 2);
@@ -276,13 +270,13 @@ double applyKernel(const Cloud& moved, const Cloud& target, const Cloud* normals
   if (m->empty()) return 0.0;
   std::vector<double> r(m->size());
   for (std::size_t k = 0; k < m->size(); ++k) r[k] = residualOf(moved, target, normals, (*m)[k]);
-  const double center = normals ? median(r) : 0.0;
+  const double center = normals ? upperMedian(r) : 0.0;
   std::vector<double> dev(r.size());
   for (std::size_t k = 0; k < r.size(); ++k) dev[k] = std::abs(r[k] - center);
   // Point-to-point distances hold the sampling offset between the clouds (about half a spacing)
   // besides the noise: the spread never falls below it there, or the kernel would weigh points
   // by how well two samplings happen to line up.
-  const double spread = std::max(1.4826 * median(dev), (normals ? 0.01 : 0.5) * spacing);
+  const double spread = std::max(1.4826 * upperMedian(dev), (normals ? 0.01 : 0.5) * spacing);
   if (o.robust_kernel == RobustKernel::kNone || !(spread > 0.0)) return spread;
   const double c2 = std::pow(o.kernel_width * spread, 2);
   for (std::size_t k = 0; k < m->size(); ++k) (*m)[k].weight = 1.0 / (1.0 + r[k] * r[k] / c2);
@@ -630,7 +624,7 @@ double medianSpacing(const KdTree& tree) {
     tree.knn(pts.col(i), 2, &idx, &d2);
     if (d2.size() == 2) d.push_back(std::sqrt(d2[1]));
   }
-  return median(d);
+  return upperMedian(d);
 }
 
 namespace {

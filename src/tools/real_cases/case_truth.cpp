@@ -6,6 +6,7 @@
 #include <tuple>
 
 #include "pcr_pro/io/bundle_writer.h"
+#include "pcr_pro/geometry/median.h"
 #include "pcr_pro/registration/icp.h"  // umeyama
 
 namespace pcr_pro {
@@ -144,13 +145,6 @@ Sim3 middleFrameG(const BuiltAgent& agent) {
   return it->second;
 }
 
-// Median of v (which it reorders); 0 when empty.
-double median(std::vector<double>* v) {
-  if (v->empty()) return 0.0;
-  std::nth_element(v->begin(), v->begin() + static_cast<long>(v->size() / 2), v->end());
-  return (*v)[v->size() / 2];
-}
-
 // Depth check of the reference pair: each frame's depth pixels, put into the world by its true
 // pose and projected into the other frame, against the depth measured there.
 void depthCheck(const BuiltAgent& target, const BuiltAgent& source, long ref_target, long ref_source,
@@ -179,8 +173,8 @@ void depthCheck(const BuiltAgent& target, const BuiltAgent& source, long ref_tar
   constexpr std::size_t kMinPixels = 100;
   if (rel.size() < kMinPixels) return;
   accuracy->measured = true;
-  accuracy->measured_depth_rel = median(&rel);
-  accuracy->measured_depth_m = median(&metres);
+  accuracy->measured_depth_rel = upperMedian(&rel);
+  accuracy->measured_depth_m = upperMedian(&metres);
 }
 
 void keyframePairs(const BuiltAgent& target, const BuiltAgent& source, const Viewer& target_view,
