@@ -30,6 +30,7 @@ void scoreOurs(const MergeResult& r, const CaseInput& in, const Matrix7d& truth_
       const auto local = in.local_truths.find({r.report.keyframe_edge->target_keyframe, r.report.keyframe_edge->source_keyframe});
       if (local != in.local_truths.end()) {
         out.reported_local = score(*r.report.transform, d.covariance, local->second, truth_cov, centroid, extent);
+        out.keyframe_local = score(d.initial, d.keyframe_covariance, local->second, truth_cov, centroid, extent);
       }
     }
   }
@@ -186,7 +187,7 @@ int bestOpen3dSetting(const std::vector<CaseResult>& results, const std::string&
 Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::string, int>& best_setting) {
   Aggregate a;
   a.pcl_success.assign(pclMethods().size(), 0);
-  std::vector<Score> rep, kf, ref, local;
+  std::vector<Score> rep, kf, ref, local, keyframe_local, keyframe_same;
   std::vector<double> ms, o3d_ms;
   for (const CaseResult& c : results) {
     ms.push_back(c.ms);
@@ -219,6 +220,10 @@ Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::
     }
     if (c.reported.has) rep.push_back(c.reported);
     if (c.reported_local.has) local.push_back(c.reported_local);
+    if (c.keyframe_local.has && c.keyframe.has) {
+      keyframe_local.push_back(c.keyframe_local);
+      keyframe_same.push_back(c.keyframe);
+    }
     if (c.keyframe.has) kf.push_back(c.keyframe);
     if (c.refined.has) ref.push_back(c.refined);
   }
@@ -226,6 +231,8 @@ Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::
   a.nees_keyframe = pool(kf);
   a.nees_refined = pool(ref);
   a.nees_local = pool(local);
+  a.nees_keyframe_local = pool(keyframe_local);
+  a.nees_keyframe_same = pool(keyframe_same);
   a.median_ms = median(ms);
   a.median_open3d_ms = o3d_ms.empty() ? 0.0 : median(o3d_ms);
   return a;
@@ -249,6 +256,9 @@ void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results) {
     line(c, "pcr_pro refined", c.refined.has ? "ESTIMATE" : "NONE", c.refined, c.refined.has, 0.0);
     if (c.reported_local.has) {
       line(c, "pcr_pro reported against the anchor pair's local truth", c.status, c.reported_local, true, 0.0);
+    }
+    if (c.keyframe_local.has) {
+      line(c, "pcr_pro keyframe-only against the anchor pair's local truth", "ESTIMATE", c.keyframe_local, true, 0.0);
     }
     for (std::size_t k = 0; k < c.open3d.size(); ++k) {
       if (!c.open3d[k].tried) continue;

@@ -59,6 +59,9 @@ struct CaseResult {
   /// The reported estimate and covariance against the local truth of its anchor keyframe pair;
   /// has only when that is known (CaseInput::local_truths).
   Score reported_local;
+  /// The keyframe-only estimate and its covariance against the same local truth (the edge's anchor
+  /// pair is the keyframe estimate's), when reported_local.has.
+  Score keyframe_local;
   std::vector<PeerRun> open3d;         ///< one per open3dSettings()
   std::vector<PeerRun> pcl;            ///< one per pclMethods(), from our keyframe estimate
   /// Our refinement alone (the merge's MapRegistration, no keyframe anchors) started at the exact
@@ -104,6 +107,8 @@ struct Aggregate {
   int icp_from_truth_local_success = 0;  ///< the same with IcpOptions::local_noise on
   NeesPool nees, nees_keyframe, nees_refined;
   NeesPool nees_local;  ///< of reported_local (cases whose anchor pair's local truth is known)
+  NeesPool nees_keyframe_local;  ///< of keyframe_local (the same cases)
+  NeesPool nees_keyframe_same;   ///< of keyframe (overlap truth) on the cases of keyframe_local
   double median_ms = 0.0, median_open3d_ms = 0.0;
 };
 Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::string, int>& best_setting);
