@@ -34,10 +34,12 @@
 #include "common/lsd_bag_stream.h"
 #include "common/yaml_sim3.h"
 #include "pcr_pro/MergeMaps.h"
+#include "pcr_pro/geometry/median.h"
 #include "pcr_pro/ros/msg_conversion.h"
 
 namespace {
 
+using pcr_pro::median;
 using pcr_pro::Sim3;
 using pcr_pro::test::DiagnosticsWatcher;
 using Response = pcr_pro::MergeMaps::Response;
@@ -133,12 +135,6 @@ Call callMerge(ros::ServiceClient& client, DiagnosticsWatcher& diagnostics, cons
     c.scale_percent = 100.0 * (d.scale() - 1.0);
   }
   return c;
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
 std::string fmt(const char* format, double value) {

@@ -49,7 +49,6 @@ Eigen::Matrix3d givenOr(const std::vector<Eigen::Matrix3d>* given, size_t i, con
   return pointCovariance(p, sigma_d, sigma_l);
 }
 
-
 Matrix32d measurementMatrix(const Match& m, const Eigen::Vector3d& t_hat) {
   Matrix32d h;
   h.col(0) = m.a;
