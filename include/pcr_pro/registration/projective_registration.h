@@ -1,0 +1,98 @@
+/**
+ * @file projective_registration.h
+ * @brief Similarity between two monocular maps from their keyframes' semi-dense depth with its
+ * per-pixel uncertainty (LSD-SLAM keyframes), by projective association instead of nearest
+ * neighbours in 3D.
+ *
+ * Each usable pixel of one map's keyframes (its depth and standard deviation known, the relative
+ * standard deviation at most max_relative_stddev) becomes a 3D point with its error along its own
+ * view ray. Moved by the current similarity and projected into each keyframe of the other map, it
+ * is matched with the nearest pixel with depth within search_radius_px. Each match gives two
+ * residuals: its depth against that pixel's depth, and its offset across the image edge there
+ * (along the grey image's gradient). Both are weighed by the two maps' noise: the pixel's depth
+ * standard deviation, edge_stddev_px across the edge, and the moving point's error along its own
+ * ray as seen from the other keyframe. Gauss-Newton on the 7 DoF with a Cauchy kernel (width in
+ * robust spreads of the whitened residuals), matches re-made every iteration.
+ *
+ * Why: a semi-dense point's depth error runs along its view ray, often farther than the point
+ * spacing, so nearest neighbours in 3D are not correspondences and planes fitted to them lie in
+ * the noise (README, Troubleshooting). A pixel's position across an image edge is precise; its
+ * depth is not, and is weighed as such.
+ *
+ * The two directions (the source's points into the target's keyframes, and the target's into the
+ * source's, inverted) are not equally good: the moving points' own ray noise biases the estimate,
+ * by how much depends on the geometry of the two maps' views (README). Both are run; the one whose
+ * whitened residuals fit their noise model better (the smaller median squared Mahalanobis length)
+ * is returned.
+ */
+#pragma once
+
+#include <string>
+
+#include "pcr_pro/geometry/map_types.h"
+#include "pcr_pro/geometry/sim3.h"
+#include "pcr_pro/geometry/similarity_fit.h"
+#include "pcr_pro/geometry/types.h"
+#include "pcr_pro/io/param_schema.h"
+
+namespace pcr_pro {
+
+/// Options of the projective registration (YAML block `projective`).
+struct ProjectiveOptions {
+  /// Standard deviation of an image edge's position across the edge [px], > 0: pixel
+  /// quantisation (1/sqrt(12) = 0.29 px) plus the edge detector's own jitter.
+  double edge_stddev_px = 0.5;
+  /// A projected point is matched with the nearest pixel with depth within this radius [px],
+  /// >= 0. Semi-dense depth lies on edges one or two pixels wide.
+  int search_radius_px = 1;
+  /// Pixels whose depth claims a larger relative standard deviation are not used [-], in (0, 1)
+  /// (the keyframe depth lookup's limit, KeyframeDepthOptions::max_relative_stddev).
+  double max_relative_stddev = 0.05;
+  /// Every n-th usable pixel of the moving map's keyframes becomes a point [-], >= 1.
+  int pixel_step = 6;
+  /// Gauss-Newton iterations at most [-], >= 1.
+  int max_iterations = 30;
+  /// Cauchy kernel width in robust spreads of the whitened residuals [-], > 0.
+  double kernel_width = 2.385;
+};
+
+/// Every parameter of ProjectiveOptions (YAML block `projective`).
+template <>
+const ParamSchema<ProjectiveOptions>& paramSchema<ProjectiveOptions>();
+
+/// @throw InputError naming the option when out of range
+void validate(const ProjectiveOptions& options);
+
+/// Outcome of registerProjective().
+struct ProjectiveResult {
+  Status status = Status::kInvalidInput;  ///< kOk, kInvalidInput (no usable depth), kNotEnoughMatches
+  std::string message;
+  Sim3 estimate;                           ///< S_target_source
+  Matrix7d covariance = Matrix7d::Zero();  ///< the Gauss-Newton normal matrix's inverse (per-residual noise only)
+  /// Median squared Mahalanobis length of the whitened residual pairs at the estimate [-]
+  /// (1.39 for residuals that follow their noise model exactly).
+  double median_chi2 = 0.0;
+  int matches = 0;         ///< point-keyframe matches at the estimate
+  bool reversed = false;   ///< the target's points moved into the source's keyframes, inverted
+  int iterations = 0;
+  /// The other direction's estimate and median chi-square, for the report [-].
+  Sim3 other_estimate;
+  double other_median_chi2 = 0.0;
+};
+
+/// @return true when every keyframe of the map has depth with a per-pixel standard deviation
+bool hasDepthUncertainty(const AgentMap& map);
+
+/**
+ * @brief Registers the source map onto the target map by projective association of their
+ * keyframes' semi-dense depth (file comment), both directions, from `initial`.
+ * @param[in] source, target maps whose keyframes carry depth and depth_stddev (hasDepthUncertainty())
+ * @param[in] initial S_target_source to start from
+ * @return kInvalidInput when a map's keyframes have no depth with uncertainty; kNotEnoughMatches
+ *   when neither direction finds 7 matches or more; else kOk with the better direction
+ * @throw InputError on invalid options
+ */
+ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& target, const Sim3& initial,
+                                    const ProjectiveOptions& options = ProjectiveOptions());
+
+}  // namespace pcr_pro

@@ -1,0 +1,331 @@
+#include "pcr_pro/registration/projective_registration.h"
+
+#include <Eigen/Cholesky>
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "pcr_pro/geometry/median.h"
+
+namespace pcr_pro {
+namespace {
+
+// Fewer matches than this do not hold 7 DoF (each match gives two residuals, but a handful of
+// them on one edge leave most directions free).
+constexpr int kMinMatches = 7;
+// Median of a chi-square with 2 DoF: the median squared Mahalanobis length of a residual pair
+// that follows its noise model.
+constexpr double kMedianChi2Of2 = 1.3863;
+
+using Vector7d = Eigen::Matrix<double, 7, 1>;
+using Jacobian = Eigen::Matrix<double, 2, 7>;
+
+// A pixel of the moving map's keyframes as a 3D point in its map, with the 1-sigma error vector
+// of its depth (along its view ray) [map units].
+struct MovingPoint {
+  Eigen::Vector3d p;
+  Eigen::Vector3d ray_error;
+};
+
+// A keyframe of the fixed map: map -> camera, its depth and standard deviation [camera units] and
+// its grey image's gradient.
+struct FixedKeyframe {
+  Sim3 map_to_camera;
+  cv::Mat depth, stddev, gx, gy;
+};
+
+struct Match {
+  Jacobian j;
+  Eigen::Vector2d r;
+  Eigen::Matrix2d c;
+  double chi2 = 0.0;
+};
+
+bool usable(float z, float sd, double max_relative) {
+  return std::isfinite(z) && std::isfinite(sd) && z > 0.0f && sd > 0.0f && sd <= max_relative * z;
+}
+
+std::vector<MovingPoint> movingPoints(const AgentMap& map, const ProjectiveOptions& o) {
+  std::vector<MovingPoint> out;
+  const PinholeCamera& k = map.camera;
+  for (const MapKeyframe& kf : map.keyframes) {
+    long n = 0;
+    for (int row = 0; row < kf.depth.rows; ++row) {
+      const float* z = kf.depth.ptr<float>(row);
+      const float* sd = kf.depth_stddev.ptr<float>(row);
+      for (int col = 0; col < kf.depth.cols; ++col) {
+        if (!usable(z[col], sd[col], o.max_relative_stddev) || n++ % o.pixel_step != 0) continue;
+        const Eigen::Vector3d ray((col - k.cx) / k.fx, (row - k.cy) / k.fy, 1.0);
+        const Eigen::Vector3d camera_point = static_cast<double>(z[col]) * ray;
+        out.push_back({kf.pose.apply(camera_point), kf.pose.scale() * (kf.pose.rotation() * (sd[col] * ray))});
+      }
+    }
+  }
+  return out;
+}
+
+std::vector<FixedKeyframe> fixedKeyframes(const AgentMap& map) {
+  std::vector<FixedKeyframe> out;
+  for (const MapKeyframe& kf : map.keyframes) {
+    FixedKeyframe f;
+    f.map_to_camera = kf.pose.inverse();
+    f.depth = kf.depth;
+    f.stddev = kf.depth_stddev;
+    cv::Sobel(kf.image, f.gx, CV_32F, 1, 0, 3);
+    cv::Sobel(kf.image, f.gy, CV_32F, 0, 1, 3);
+    out.push_back(std::move(f));
+  }
+  return out;
+}
+
+// d(u, v) / d(camera point) of the pinhole projection at c.
+Eigen::Matrix<double, 2, 3> projectionJacobian(const PinholeCamera& k, const Eigen::Vector3d& c) {
+  const double iz = 1.0 / c.z();
+  Eigen::Matrix<double, 2, 3> p;
+  p << k.fx * iz, 0.0, -k.fx * c.x() * iz * iz, 0.0, k.fy * iz, -k.fy * c.y() * iz * iz;
+  return p;
+}
+
+// The residual pair of a point y [fixed map units] against a fixed pixel (u0, v0) with depth z0
+// across the edge direction n, and its Jacobian in the left perturbation of the similarity.
+void residual(const FixedKeyframe& f, const PinholeCamera& k, const Eigen::Vector3d& y, double u0, double v0,
+              double z0, const Eigen::Vector2d& n, Eigen::Vector2d* r, Jacobian* j) {
+  const Eigen::Vector3d c = f.map_to_camera.apply(y);
+  const double iz = 1.0 / c.z();
+  const Eigen::Matrix3d m = f.map_to_camera.scale() * f.map_to_camera.rotation();
+  const Eigen::Matrix<double, 3, 7> jc = m * similarityJacobian(y);
+  const Eigen::Matrix<double, 2, 3> p = projectionJacobian(k, c);
+  (*r)(0) = c.z() - z0;
+  (*r)(1) = n.dot(Eigen::Vector2d(k.fx * c.x() * iz + k.cx - u0, k.fy * c.y() * iz + k.cy - v0));
+  j->row(0) = jc.row(2);
+  j->row(1) = n.transpose() * p * jc;
+}
+
+// Every match of the moving points at S, with its noise and squared Mahalanobis length, in the
+// order of the points and keyframes (the same on any number of threads).
+std::vector<Match> matchesAt(const Sim3& s, const std::vector<MovingPoint>& points,
+                             const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
+                             const ProjectiveOptions& o) {
+  const int rad = o.search_radius_px;
+  const double edge2 = o.edge_stddev_px * o.edge_stddev_px;
+  std::vector<std::vector<Match>> per_point(points.size());
+#pragma omp parallel for schedule(static)
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d y = s.apply(points[i].p);
+    const Eigen::Vector3d error = s.scale() * (s.rotation() * points[i].ray_error);
+    for (const FixedKeyframe& f : frames) {
+      const Eigen::Vector3d c = f.map_to_camera.apply(y);
+      if (!(c.z() > 0.0)) continue;
+      const double u = k.fx * c.x() / c.z() + k.cx, v = k.fy * c.y() / c.z() + k.cy;
+      if (!(u >= rad + 1.0 && v >= rad + 1.0 && u < f.depth.cols - rad - 2.0 && v < f.depth.rows - rad - 2.0)) continue;
+      const int cu = static_cast<int>(std::lround(u)), cv0 = static_cast<int>(std::lround(v));
+      double best = std::numeric_limits<double>::infinity();
+      int bu = -1, bv = -1;
+      for (int dv = -rad; dv <= rad; ++dv) {
+        for (int du = -rad; du <= rad; ++du) {
+          if (!usable(f.depth.at<float>(cv0 + dv, cu + du), f.stddev.at<float>(cv0 + dv, cu + du),
+                      o.max_relative_stddev)) {
+            continue;
+          }
+          const double d2 = (cu + du - u) * (cu + du - u) + (cv0 + dv - v) * (cv0 + dv - v);
+          if (d2 < best) best = d2, bu = cu + du, bv = cv0 + dv;
+        }
+      }
+      if (bu < 0) continue;
+      Eigen::Vector2d n(f.gx.at<float>(bv, bu), f.gy.at<float>(bv, bu));
+      if (!(n.norm() > 0.0)) continue;
+      n.normalize();
+      const double z0 = f.depth.at<float>(bv, bu), sd0 = f.stddev.at<float>(bv, bu);
+      Match m;
+      residual(f, k, y, bu, bv, z0, n, &m.r, &m.j);
+      // The moving point's own error, as the two residuals see it (first order).
+      const Eigen::Vector3d ec = f.map_to_camera.scale() * (f.map_to_camera.rotation() * error);
+      const Eigen::Vector2d seen(ec.z(), n.dot(projectionJacobian(k, c) * ec));
+      m.c << sd0 * sd0, 0.0, 0.0, edge2;
+      m.c += seen * seen.transpose();
+      const Eigen::LDLT<Eigen::Matrix2d> ldlt(m.c);
+      m.chi2 = m.r.dot(ldlt.solve(m.r));
+      if (!std::isfinite(m.chi2)) continue;
+      per_point[i].push_back(m);
+    }
+  }
+  std::vector<Match> out;
+  for (auto& v : per_point) out.insert(out.end(), v.begin(), v.end());
+  return out;
+}
+
+struct Direction {
+  Sim3 estimate;
+  Matrix7d information = Matrix7d::Zero();
+  double median_chi2 = std::numeric_limits<double>::infinity();
+  int matches = 0, iterations = 0;
+  bool ok = false;
+};
+
+// The IRLS normal equations of the matches: Cauchy weights on the squared Mahalanobis lengths
+// over their robust spread (their median over the chi-square's, at least 1: residuals that follow
+// their noise model keep it).
+void normalEquations(const std::vector<Match>& matches, double width, Matrix7d* h, Vector7d* g, double* median_chi2) {
+  std::vector<double> chi2;
+  chi2.reserve(matches.size());
+  for (const Match& m : matches) chi2.push_back(m.chi2);
+  *median_chi2 = upperMedian(&chi2);
+  const double spread = std::max(1.0, *median_chi2 / kMedianChi2Of2);
+  h->setZero();
+  g->setZero();
+  for (const Match& m : matches) {
+    const double w = 1.0 / (1.0 + m.chi2 / (spread * width * width));
+    const Eigen::Matrix2d ci = m.c.inverse();
+    *h += w * m.j.transpose() * ci * m.j;
+    *g += w * m.j.transpose() * ci * m.r;
+  }
+  *h /= spread;
+  *g /= spread;
+}
+
+Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedKeyframe>& frames,
+                const PinholeCamera& k, const Sim3& initial, const ProjectiveOptions& o) {
+  Direction d;
+  d.estimate = initial;
+  if (points.empty()) return d;
+  // The moving points' RMS radius about their centroid [moving map units]: the length scale of the
+  // translation's convergence check.
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const MovingPoint& m : points) centroid += m.p / static_cast<double>(points.size());
+  double radius2 = 0.0;
+  for (const MovingPoint& m : points) radius2 += (m.p - centroid).squaredNorm() / static_cast<double>(points.size());
+  const double radius = std::sqrt(radius2);
+  for (int it = 0; it < o.max_iterations; ++it) {
+    const std::vector<Match> matches = matchesAt(d.estimate, points, frames, k, o);
+    if (static_cast<int>(matches.size()) < kMinMatches) return d;
+    Vector7d g;
+    normalEquations(matches, o.kernel_width, &d.information, &g, &d.median_chi2);
+    d.matches = static_cast<int>(matches.size());
+    const Eigen::LDLT<Matrix7d> ldlt(d.information);
+    if (ldlt.info() != Eigen::Success) return d;
+    const Vector7d step = -ldlt.solve(g);
+    if (!step.allFinite()) return d;
+    d.iterations = it + 1;
+    // Converged when the step rotates by less than 1e-4 rad, changes the scale by less than 1e-4
+    // and moves by less than 1e-4 of the moving points' RMS radius: the ICP's differential check
+    // (IcpOptions), far below the noise of either map.
+    const bool small = step.segment<3>(3).norm() < 1e-4 && std::abs(step(6)) < 1e-4 &&
+                       step.head<3>().norm() < 1e-4 * radius * d.estimate.scale();
+    d.estimate = applyDelta(step, d.estimate);
+    if (small) break;
+  }
+  // The noise model's fit and the information at the final estimate.
+  const std::vector<Match> matches = matchesAt(d.estimate, points, frames, k, o);
+  if (static_cast<int>(matches.size()) < kMinMatches) return d;
+  Vector7d g;
+  normalEquations(matches, o.kernel_width, &d.information, &g, &d.median_chi2);
+  d.matches = static_cast<int>(matches.size());
+  d.ok = d.estimate.matrix().allFinite() && d.information.allFinite();
+  return d;
+}
+
+}  // namespace
+
+template <>
+const ParamSchema<ProjectiveOptions>& paramSchema<ProjectiveOptions>() {
+  using O = ProjectiveOptions;
+  using R = ParamRange;
+  static const ParamSchema<O> schema{"projective", {
+      {"edge_stddev_px", &O::edge_stddev_px, R::above(0), "px", "standard deviation of an edge's position across it"},
+      {"search_radius_px", &O::search_radius_px, R::closed(0, 5), "px",
+       "a projected point is matched with the nearest pixel with depth within this radius"},
+      {"max_relative_stddev", &O::max_relative_stddev, R::open(0, 1), "-",
+       "pixels whose depth claims a larger relative standard deviation are not used"},
+      {"pixel_step", &O::pixel_step, R::atLeast(1), "", "every n-th usable pixel of the moving map becomes a point"},
+      {"max_iterations", &O::max_iterations, R::atLeast(1), "", "Gauss-Newton iterations at most"},
+      {"kernel_width", &O::kernel_width, R::above(0), "-", "Cauchy kernel width in robust spreads"},
+  }};
+  return schema;
+}
+
+void validate(const ProjectiveOptions& options) { checkRanges(paramSchema<ProjectiveOptions>(), options); }
+
+bool hasDepthUncertainty(const AgentMap& map) {
+  if (map.keyframes.empty()) return false;
+  for (const MapKeyframe& kf : map.keyframes) {
+    if (kf.depth.empty() || kf.depth_stddev.empty() || kf.image.type() != CV_8UC1 || kf.depth.type() != CV_32FC1 ||
+        kf.depth_stddev.type() != CV_32FC1 || kf.depth.size() != kf.depth_stddev.size() ||
+        kf.depth.cols != map.camera.width || kf.depth.rows != map.camera.height || kf.image.size() != kf.depth.size()) {
+      return false;
+    }
+  }
+  return true;
+}
+
+ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& target, const Sim3& initial,
+                                    const ProjectiveOptions& options) {
+  validate(options);
+  ProjectiveResult out;
+  out.estimate = initial;
+  for (const auto& [map, which] : {std::pair<const AgentMap*, const char*>{&source, "source"}, {&target, "target"}}) {
+    if (!hasDepthUncertainty(*map)) {
+      out.status = Status::kInvalidInput;
+      out.message = std::string("projective registration: the ") + which +
+                    " map's keyframes lack depth with a per-pixel standard deviation";
+      return out;
+    }
+    for (const MapKeyframe& kf : map->keyframes) {
+      if (!(kf.pose.scale() > 0.0) || !kf.pose.matrix().allFinite()) {
+        out.status = Status::kInvalidInput;
+        out.message = std::string("projective registration: ") + which + " keyframe " + std::to_string(kf.id) +
+                      " has an invalid pose";
+        return out;
+      }
+    }
+    if (!map->camera.valid()) {
+      out.status = Status::kInvalidInput;
+      out.message = std::string("projective registration: the ") + which + " map's camera is invalid";
+      return out;
+    }
+  }
+  const Direction forward =
+      solve(movingPoints(source, options), fixedKeyframes(target), target.camera, initial, options);
+  Direction backward =
+      solve(movingPoints(target, options), fixedKeyframes(source), source.camera, initial.inverse(), options);
+  if (backward.ok) {
+    // Into the requested direction, S = B⁻¹: its covariance is Ad(B⁻¹) C_B Ad(B⁻¹)ᵀ
+    // (similarityAdjoint()), so its information is Ad(B)ᵀ I_B Ad(B).
+    const Matrix7d ad = similarityAdjoint(backward.estimate);
+    backward.information = ad.transpose() * backward.information * ad;
+    backward.estimate = backward.estimate.inverse();
+  }
+  if (!forward.ok && !backward.ok) {
+    out.status = Status::kNotEnoughMatches;
+    out.message = "projective registration: fewer than " + std::to_string(kMinMatches) +
+                  " point-keyframe matches in either direction";
+    return out;
+  }
+  const bool use_backward = backward.ok && (!forward.ok || backward.median_chi2 < forward.median_chi2);
+  const Direction& d = use_backward ? backward : forward;
+  const Direction& other = use_backward ? forward : backward;
+  const Eigen::LDLT<Matrix7d> ldlt(d.information);
+  out.covariance = ldlt.solve(Matrix7d::Identity());
+  out.covariance = 0.5 * (out.covariance + out.covariance.transpose()).eval();
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || !out.covariance.allFinite() ||
+      !(ldlt.vectorD().minCoeff() > 0.0)) {
+    out.status = Status::kNotEnoughMatches;
+    out.message = "projective registration: the matches do not hold all 7 DoF";
+    return out;
+  }
+  out.status = Status::kOk;
+  out.estimate = d.estimate;
+  out.median_chi2 = d.median_chi2;
+  out.matches = d.matches;
+  out.reversed = use_backward;
+  out.iterations = d.iterations;
+  out.other_estimate = other.ok ? other.estimate : initial;
+  out.other_median_chi2 = other.ok ? other.median_chi2 : std::numeric_limits<double>::infinity();
+  out.message = std::string(use_backward ? "target's points into the source's keyframes" : "source's points into the target's keyframes") +
+                ", " + std::to_string(out.matches) + " matches, median chi2 " + std::to_string(out.median_chi2);
+  return out;
+}
+
+}  // namespace pcr_pro
