@@ -72,6 +72,10 @@ struct CaseResult {
   /// The same estimate as icp_from_truth with covariance.jackknife_blocks = kBenchJackknifeBlocks
   /// (an option, off by default): only its covariance differs.
   PeerRun icp_from_truth_jackknife;
+  /// The projective registration of the keyframes' depth (registration/projective_registration.h,
+  /// not part of the merge) from the exact truth and from our keyframe estimate; tried only when
+  /// both maps' keyframes carry depth with a per-pixel standard deviation (LSD-SLAM keyframes).
+  PeerRun projective_from_truth, projective_from_keyframes;
 };
 
 /// Blocks of the bench's jackknife row (CaseResult::icp_from_truth_jackknife).
@@ -117,6 +121,9 @@ Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::
 void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results);
 /// Our refinement alone from the truth: how many stayed within the floors, and those that did not.
 void writeIcpFromTruth(std::FILE* md, const std::vector<CaseResult>& results);
+/// The projective registration's rows (CaseResult::projective_from_truth, projective_from_keyframes)
+/// beside our refinement from the truth and our reported estimate on the same cases.
+void writeProjective(std::FILE* md, const std::vector<CaseResult>& results);
 /// The per-case Markdown table.
 void writeCaseTable(std::FILE* md, const std::vector<CaseResult>& results, const std::map<std::string, int>& best);
 /// The Open3D settings sweep per family (successes per setting).

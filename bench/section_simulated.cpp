@@ -247,6 +247,7 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                  symmetry_text.c_str());
   }
   writeIcpFromTruth(md, results);
+  writeProjective(md, results);
   if (s.peers) writeOpen3dSweep(md, results, {"simulated"});
   std::fprintf(md, "<details><summary>Per case</summary>\n\n");
   writeCaseTable(md, results, best);
