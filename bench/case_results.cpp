@@ -508,7 +508,10 @@ void writeProjective(std::FILE* md, const std::vector<CaseResult>& results) {
       scale_p.push_back(p.scale_pct);
       ms.push_back(c.projective_from_truth.ms);
     }
-    if (c.icp_from_truth.ran) rot_i.push_back(c.icp_from_truth.score.rotation_deg), scale_i.push_back(c.icp_from_truth.score.scale_pct);
+    if (c.icp_from_truth.ran) {
+      rot_i.push_back(c.icp_from_truth.score.rotation_deg);
+      scale_i.push_back(c.icp_from_truth.score.scale_pct);
+    }
     if (c.projective_from_keyframes.tried) {
       ++kf_n;
       kf_ok += c.projective_from_keyframes.ran && c.projective_from_keyframes.score.within_floors;

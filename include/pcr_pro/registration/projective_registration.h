@@ -37,7 +37,8 @@
 
 namespace pcr_pro {
 
-/// Options of the projective registration (YAML block `projective`).
+/// Options of the projective registration (schema `projective`; no YAML file reads them yet, since
+/// the merge does not use this stage).
 struct ProjectiveOptions {
   /// Standard deviation of an image edge's position across the edge [px], > 0: pixel
   /// quantisation (1/sqrt(12) = 0.29 px) plus the edge detector's own jitter.
@@ -56,7 +57,7 @@ struct ProjectiveOptions {
   double kernel_width = 2.385;
 };
 
-/// Every parameter of ProjectiveOptions (YAML block `projective`).
+/// Every parameter of ProjectiveOptions: key, type, default (the member initialiser), range, unit, doc.
 template <>
 const ParamSchema<ProjectiveOptions>& paramSchema<ProjectiveOptions>();
 

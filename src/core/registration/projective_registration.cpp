@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <vector>
 
@@ -323,8 +324,11 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
   out.iterations = d.iterations;
   out.other_estimate = other.ok ? other.estimate : initial;
   out.other_median_chi2 = other.ok ? other.median_chi2 : std::numeric_limits<double>::infinity();
-  out.message = std::string(use_backward ? "target's points into the source's keyframes" : "source's points into the target's keyframes") +
-                ", " + std::to_string(out.matches) + " matches, median chi2 " + std::to_string(out.median_chi2);
+  char chi2[32];
+  std::snprintf(chi2, sizeof chi2, "%.3g", out.median_chi2);
+  out.message = std::string(use_backward ? "the target's points into the source's keyframes"
+                                         : "the source's points into the target's keyframes") +
+                ", " + std::to_string(out.matches) + " matches, median chi2 " + chi2;
   return out;
 }
 
