@@ -29,6 +29,7 @@
 
 #include <string>
 
+#include "pcr_pro/frontend/keyframe_depth.h"
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/geometry/sim3.h"
 #include "pcr_pro/geometry/similarity_fit.h"
@@ -46,9 +47,10 @@ struct ProjectiveOptions {
   /// A projected point is matched with the nearest pixel with depth within this radius [px],
   /// >= 0. Semi-dense depth lies on edges one or two pixels wide.
   int search_radius_px = 1;
-  /// Pixels whose depth claims a larger relative standard deviation are not used [-], in (0, 1)
-  /// (the keyframe depth lookup's limit, KeyframeDepthOptions::max_relative_stddev).
-  double max_relative_stddev = 0.05;
+  /// Pixels whose depth claims a larger relative standard deviation are not used [-], in (0, 1).
+  /// By default the keyframe depth lookup's limit (KeyframeDepthOptions::max_relative_stddev),
+  /// measured on real LSD-SLAM keyframes: pixels that claim more are often far wrong.
+  double max_relative_stddev = KeyframeDepthOptions().max_relative_stddev;
   /// Every n-th usable pixel of the moving map's keyframes becomes a point [-], >= 1.
   int pixel_step = 6;
   /// Gauss-Newton iterations at most [-], >= 1.
