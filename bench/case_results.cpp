@@ -488,12 +488,6 @@ void writeAggregateTable(std::FILE* md, const std::vector<CaseResult>& results, 
   std::fprintf(md, "\n");
 }
 
-}  // namespace bench
-}  // namespace pcr_pro
-
-namespace pcr_pro {
-namespace bench {
-
 void writeProjective(std::FILE* md, const std::vector<CaseResult>& results) {
   int n = 0, truth_ok = 0, icp_ok = 0, kf_n = 0, kf_ok = 0, reported_ok = 0;
   std::vector<double> rot_p, rot_i, scale_p, scale_i, rot_k, rot_r, ms;
@@ -521,7 +515,6 @@ void writeProjective(std::FILE* md, const std::vector<CaseResult>& results) {
     }
   }
   if (n == 0) return;
-  const auto med = [](std::vector<double> v) { return v.empty() ? std::nan("") : median(v); };
   std::fprintf(md, "**Projective registration of the keyframes' depth** (registration/projective_registration.h: each "
                    "map's LSD keyframe pixels projected into the other map's keyframes, residuals in depth and across "
                    "the image edge, both directions, the better-fitting one kept; not part of the merge, README), on the "
@@ -532,9 +525,9 @@ void writeProjective(std::FILE* md, const std::vector<CaseResult>& results) {
                    "rotation error %s deg (reported: %s). Its own covariance (the Gauss-Newton information, per-residual "
                    "noise only) is far too confident and is not used (rows `pcr_pro projective registration ...` of the "
                    "CSV).\n\n",
-               n, truth_ok, n, icp_ok, n, fmt(med(rot_p), 2).c_str(), fmt(med(rot_i), 2).c_str(),
-               fmt(med(scale_p), 2).c_str(), fmt(med(scale_i), 2).c_str(), fmt(med(ms), 0).c_str(), kf_ok, kf_n,
-               reported_ok, kf_n, fmt(med(rot_k), 2).c_str(), fmt(med(rot_r), 2).c_str());
+               n, truth_ok, n, icp_ok, n, fmt(median(rot_p), 2).c_str(), fmt(median(rot_i), 2).c_str(),
+               fmt(median(scale_p), 2).c_str(), fmt(median(scale_i), 2).c_str(), fmt(median(ms), 0).c_str(), kf_ok, kf_n,
+               reported_ok, kf_n, fmt(median(rot_k), 2).c_str(), fmt(median(rot_r), 2).c_str());
 }
 
 }  // namespace bench

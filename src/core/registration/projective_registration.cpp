@@ -90,17 +90,16 @@ Eigen::Matrix<double, 2, 3> projectionJacobian(const PinholeCamera& k, const Eig
   return p;
 }
 
-// The residual pair of a point y [fixed map units] against a fixed pixel (u0, v0) with depth z0
-// across the edge direction n, and its Jacobian in the left perturbation of the similarity.
-void residual(const FixedKeyframe& f, const PinholeCamera& k, const Eigen::Vector3d& y, double u0, double v0,
-              double z0, const Eigen::Vector2d& n, Eigen::Vector2d* r, Jacobian* j) {
-  const Eigen::Vector3d c = f.map_to_camera.apply(y);
-  const double iz = 1.0 / c.z();
+// The residual pair of a point y [fixed map units], at c in the keyframe's camera (projected at
+// (u, v), projection Jacobian p), against a fixed pixel (u0, v0) with depth z0 across the edge
+// direction n, and its Jacobian in the left perturbation of the similarity.
+void residual(const FixedKeyframe& f, const Eigen::Vector3d& y, const Eigen::Vector3d& c, double u, double v,
+              const Eigen::Matrix<double, 2, 3>& p, double u0, double v0, double z0, const Eigen::Vector2d& n,
+              Eigen::Vector2d* r, Jacobian* j) {
   const Eigen::Matrix3d m = f.map_to_camera.scale() * f.map_to_camera.rotation();
   const Eigen::Matrix<double, 3, 7> jc = m * similarityJacobian(y);
-  const Eigen::Matrix<double, 2, 3> p = projectionJacobian(k, c);
   (*r)(0) = c.z() - z0;
-  (*r)(1) = n.dot(Eigen::Vector2d(k.fx * c.x() * iz + k.cx - u0, k.fy * c.y() * iz + k.cy - v0));
+  (*r)(1) = n.dot(Eigen::Vector2d(u - u0, v - v0));
   j->row(0) = jc.row(2);
   j->row(1) = n.transpose() * p * jc;
 }
@@ -141,10 +140,11 @@ std::vector<Match> matchesAt(const Sim3& s, const std::vector<MovingPoint>& poin
       n.normalize();
       const double z0 = f.depth.at<float>(bv, bu), sd0 = f.stddev.at<float>(bv, bu);
       Match m;
-      residual(f, k, y, bu, bv, z0, n, &m.r, &m.j);
+      const Eigen::Matrix<double, 2, 3> p = projectionJacobian(k, c);
+      residual(f, y, c, u, v, p, bu, bv, z0, n, &m.r, &m.j);
       // The moving point's own error, as the two residuals see it (first order).
       const Eigen::Vector3d ec = f.map_to_camera.scale() * (f.map_to_camera.rotation() * error);
-      const Eigen::Vector2d seen(ec.z(), n.dot(projectionJacobian(k, c) * ec));
+      const Eigen::Vector2d seen(ec.z(), n.dot(p * ec));
       m.c << sd0 * sd0, 0.0, 0.0, edge2;
       m.c += seen * seen.transpose();
       const Eigen::LDLT<Eigen::Matrix2d> ldlt(m.c);
