@@ -70,6 +70,37 @@ TEST(Projective, TheCleanerMapsPointsAreTheOnesMoved) {
   EXPECT_GT(r.other_median_chi2, 2.0 * r.median_chi2);
 }
 
+// Re-made matches let the estimate creep to its fixed point with steps that shrink slowly in one
+// direction. From 1 deg off, measured on seeds 0-2: 36-41 iterations without extrapolation, 12-16
+// with it, the two ends 0.010-0.033 deg and at most 0.05 % apart. Stopped before it gets there, the
+// registration is not converged: a status, not OK, with the estimate so far.
+TEST(Projective, ACreepingEstimateIsExtrapolatedAndAnUnfinishedOneIsNotOk) {
+  Eigen::Matrix<double, 7, 1> kick;
+  kick << 0.02, -0.01, 0.015, 0.012, -0.008, 0.01, 0.01;
+  const World w = lsdWorld(0, 0.01, -1.0);
+  const Sim3 start = applyDelta(kick, w.truth);
+  ProjectiveOptions plain;
+  plain.extrapolation = false;
+  const ProjectiveResult a = registerProjective(w.source, w.target, start);
+  const ProjectiveResult b = registerProjective(w.source, w.target, start, plain);
+  ASSERT_EQ(a.status, Status::kOk) << a.message;
+  ASSERT_EQ(b.status, Status::kOk) << b.message;
+  EXPECT_GT(a.extrapolations, 0);
+  EXPECT_EQ(b.extrapolations, 0);
+  EXPECT_LT(2 * a.iterations, b.iterations);
+  EXPECT_LT(rotationDeg(a.estimate, b.estimate), 0.1);
+  EXPECT_LT(std::abs(a.estimate.scale() / b.estimate.scale() - 1.0), 0.002);
+
+  ProjectiveOptions short_run;
+  short_run.max_iterations = 2;
+  const ProjectiveResult c = registerProjective(w.source, w.target, start, short_run);
+  EXPECT_EQ(c.status, Status::kIcpNotConverged);
+  EXPECT_NE(c.message.find("did not converge within 2 iterations"), std::string::npos) << c.message;
+  EXPECT_EQ(c.iterations, 2);
+  EXPECT_TRUE(c.estimate.matrix().allFinite());
+  EXPECT_GT(rotationDeg(c.estimate, a.estimate), 0.0);
+}
+
 TEST(Projective, MapsWithoutDepthUncertaintyAreRefusedNamingTheMap) {
   const World w = lsdWorld(0, 0.01, -1.0);
   AgentMap plain = w.target;

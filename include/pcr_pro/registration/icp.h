@@ -48,6 +48,12 @@ const char* errorMetricName(ErrorMetric metric);
 /// @return false when the name is unknown
 bool parseErrorMetric(const std::string& name, ErrorMetric* metric);
 
+/// Extrapolation of an iteration that creeps (IcpOptions::extrapolation, ProjectiveOptions): only
+/// when the last two steps point the same way within about 18 degrees (cosine above this) [-] ...
+inline constexpr double kExtrapolationMinCosine = 0.95;
+/// ... and never more than this many times the last step [-].
+inline constexpr double kExtrapolationMaxFactor = 8.0;
+
 /// The coarse level's differential check is this many times looser than the final one [-].
 constexpr double kCoarseToleranceFactor = 10.0;
 

@@ -638,11 +638,6 @@ struct LevelOutcome {
   std::string message;
 };
 
-// Extrapolation (see iterateLevel): only when the last two steps point the same way within
-// about 18 degrees, and never more than this many times the last step.
-constexpr double kExtrapolationMinCosine = 0.95;
-constexpr double kExtrapolationMaxFactor = 8.0;
-
 // What every level of iterations shares.
 struct LevelEnv {
   const KdTree& tree;

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "pcr_pro/geometry/median.h"
+#include "pcr_pro/registration/icp.h"
 
 namespace pcr_pro {
 namespace {
@@ -20,6 +21,8 @@ constexpr int kMinMatches = 7;
 // Median of a chi-square with 2 DoF: the median squared Mahalanobis length of a residual pair
 // that follows its noise model.
 constexpr double kMedianChi2Of2 = 1.3863;
+// The moving points are matched in this many contiguous chunks (matchesAt()).
+constexpr std::size_t kMatchChunks = 64;
 
 using Vector7d = Eigen::Matrix<double, 7, 1>;
 using Jacobian = Eigen::Matrix<double, 2, 7>;
@@ -111,9 +114,16 @@ std::vector<Match> matchesAt(const Sim3& s, const std::vector<MovingPoint>& poin
                              const ProjectiveOptions& o) {
   const int rad = o.search_radius_px;
   const double edge2 = o.edge_stddev_px * o.edge_stddev_px;
-  std::vector<std::vector<Match>> per_point(points.size());
-#pragma omp parallel for schedule(static)
-  for (std::size_t i = 0; i < points.size(); ++i) {
+  // The points in a fixed number of contiguous chunks, each collecting its own matches, joined in
+  // chunk order: the same result on any number of threads, and a handful of allocations per
+  // iteration instead of one per point.
+  const std::size_t chunk_count = std::min<std::size_t>(kMatchChunks, std::max<std::size_t>(1, points.size()));
+  std::vector<std::vector<Match>> per_chunk(chunk_count);
+#pragma omp parallel for schedule(dynamic)
+  for (std::size_t chunk = 0; chunk < chunk_count; ++chunk) {
+  std::vector<Match>& found = per_chunk[chunk];
+  const std::size_t begin = points.size() * chunk / chunk_count, end = points.size() * (chunk + 1) / chunk_count;
+  for (std::size_t i = begin; i < end; ++i) {
     const Eigen::Vector3d y = s.apply(points[i].p);
     const Eigen::Vector3d error = s.scale() * (s.rotation() * points[i].ray_error);
     for (const FixedKeyframe& f : frames) {
@@ -150,11 +160,15 @@ std::vector<Match> matchesAt(const Sim3& s, const std::vector<MovingPoint>& poin
       const Eigen::LDLT<Eigen::Matrix2d> ldlt(m.c);
       m.chi2 = m.r.dot(ldlt.solve(m.r));
       if (!std::isfinite(m.chi2)) continue;
-      per_point[i].push_back(m);
+      found.push_back(m);
     }
   }
+  }
+  std::size_t total = 0;
+  for (const auto& v : per_chunk) total += v.size();
   std::vector<Match> out;
-  for (auto& v : per_point) out.insert(out.end(), v.begin(), v.end());
+  out.reserve(total);
+  for (const auto& v : per_chunk) out.insert(out.end(), v.begin(), v.end());
   return out;
 }
 
@@ -162,8 +176,9 @@ struct Direction {
   Sim3 estimate;
   Matrix7d information = Matrix7d::Zero();
   double median_chi2 = std::numeric_limits<double>::infinity();
-  int matches = 0, iterations = 0;
+  int matches = 0, iterations = 0, extrapolations = 0;
   bool ok = false;
+  bool converged = false;  // the differential check passed before max_iterations
 };
 
 // The IRLS normal equations of the matches: Cauchy weights on the squared Mahalanobis lengths
@@ -199,6 +214,7 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
   double radius2 = 0.0;
   for (const MovingPoint& m : points) radius2 += (m.p - centroid).squaredNorm() / static_cast<double>(points.size());
   const double radius = std::sqrt(radius2);
+  Vector7d previous = Vector7d::Zero();
   for (int it = 0; it < o.max_iterations; ++it) {
     const std::vector<Match> matches = matchesAt(d.estimate, points, frames, k, o);
     if (static_cast<int>(matches.size()) < kMinMatches) return d;
@@ -215,8 +231,25 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
     // (IcpOptions), far below the noise of either map.
     const bool small = step.segment<3>(3).norm() < 1e-4 && std::abs(step(6)) < 1e-4 &&
                        step.head<3>().norm() < 1e-4 * radius * d.estimate.scale();
-    d.estimate = applyDelta(step, d.estimate);
-    if (small) break;
+    // Re-made matches let the estimate creep: successive steps point the same way (cosine about
+    // 0.99 in the information's metric) and shrink slowly. The rest of their geometric series is
+    // taken at once, as the ICP does (IcpOptions::extrapolation); a wrong guess costs one step.
+    double factor = 1.0;
+    if (o.extrapolation && !small) {
+      const double a = step.dot(d.information * step), b = previous.dot(d.information * previous);
+      const double cosine = a > 0.0 && b > 0.0 ? step.dot(d.information * previous) / std::sqrt(a * b) : 0.0;
+      const double ratio = b > 0.0 ? std::sqrt(a / b) : 1.0;
+      if (cosine > kExtrapolationMinCosine && ratio < 1.0) {
+        factor = 1.0 + std::min(kExtrapolationMaxFactor, ratio / (1.0 - ratio));
+        ++d.extrapolations;
+      }
+    }
+    previous = step;
+    d.estimate = applyDelta(factor * step, d.estimate);
+    if (small) {
+      d.converged = true;
+      break;
+    }
   }
   // The noise model's fit and the information at the final estimate.
   const std::vector<Match> matches = matchesAt(d.estimate, points, frames, k, o);
@@ -243,6 +276,7 @@ const ParamSchema<ProjectiveOptions>& paramSchema<ProjectiveOptions>() {
       {"pixel_step", &O::pixel_step, R::atLeast(1), "", "every n-th usable pixel of the moving map becomes a point"},
       {"max_iterations", &O::max_iterations, R::atLeast(1), "", "Gauss-Newton iterations at most"},
       {"kernel_width", &O::kernel_width, R::above(0), "-", "Cauchy kernel width in robust spreads"},
+      {"extrapolation", &O::extrapolation, R::any(), "", "take the rest of a creeping series of steps at once"},
   }};
   return schema;
 }
@@ -316,8 +350,9 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
     out.message = "projective registration: the matches do not hold all 7 DoF";
     return out;
   }
-  out.status = Status::kOk;
+  out.status = d.converged ? Status::kOk : Status::kIcpNotConverged;
   out.estimate = d.estimate;
+  out.extrapolations = d.extrapolations;
   out.median_chi2 = d.median_chi2;
   out.matches = d.matches;
   out.reversed = use_backward;
@@ -329,6 +364,10 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
   out.message = std::string(use_backward ? "the target's points into the source's keyframes"
                                          : "the source's points into the target's keyframes") +
                 ", " + std::to_string(out.matches) + " matches, median chi2 " + chi2;
+  if (!d.converged) {
+    out.message = "projective registration: did not converge within " + std::to_string(options.max_iterations) +
+                  " iterations (" + out.message + ")";
+  }
   return out;
 }
 
