@@ -291,8 +291,8 @@ AgentMap withKeyframes(const AgentMap& map, const std::vector<long>& ids) {
 
 // Within one map, between interleaved keyframes of A's overlap region, the identity is the truth (as
 // far as LSD-SLAM's map is consistent with itself): the keyframes' depth, poses and variance are read
-// as the stage expects them. Measured 2026-12-05: median chi2 0.72 at the identity (LSD's variance
-// is, if anything, generous), converged 0.13 deg and -0.5 % away.
+// as the stage expects them. Measured 2026-12-05: converged 0.12 deg and -0.2 % away, median chi2
+// 0.31 (0.72 at the identity before each point took the likeliest of the pixels near it).
 TEST_F(RealLsdSlam, ProjectiveRegistrationWithinOneRealMapStaysAtTheIdentity) {
   const RealMerges& m = realMerges();
   ASSERT_TRUE(hasDepthUncertainty(m.a) && hasDepthUncertainty(m.b));
@@ -304,43 +304,52 @@ TEST_F(RealLsdSlam, ProjectiveRegistrationWithinOneRealMapStaysAtTheIdentity) {
   ASSERT_EQ(r.status, Status::kOk) << r.message;
   EXPECT_LT(deg(rotationDistance(r.estimate.rotation(), Eigen::Matrix3d::Identity())), 0.5);
   EXPECT_LT(std::abs(r.estimate.scale() - 1.0), 0.01);
-  EXPECT_LT(r.median_chi2, 1.3863);  // the median of chi-square with 2 DoF: residuals within their noise
 }
 
-// Elsewhere on these maps the stage runs away (2026-12-05): between A's keyframes {91, 107} and
-// {124, 142}, from the identity with residuals that fit their noise (median chi2 0.92), its steps
-// keep one direction and grow; still moving after 60 iterations, 37 deg off with extrapolation and
-// 3.1 deg without. B's overlap keyframes onto A's, from the keyframe estimate or the overlap truth:
-// 151-168 deg off after 60 iterations, with or without. Until that is understood the stage stays out of the
-// merge; what this checks is that it never calls such a result OK: an estimate that is still moving
-// at the iteration limit is ICP_NOT_CONVERGED (before, OK at 30 iterations whatever it was).
+// Between A's keyframes {91, 107} and {124, 142}, from the identity, the stage ran away while each
+// point was matched with the nearest pixel with depth (2026-12-05): its steps kept one direction and
+// grew, every step lowered the cost of its own matches and the next matching raised it more (semi-
+// dense depth lies on depth edges, and the nearest pixel is often across one); 37 deg off after 60
+// iterations with extrapolation, 3.1 deg without. With the likeliest pixel it converges 0.57 deg
+// and -0.2 % away.
+TEST_F(RealLsdSlam, ProjectiveRegistrationBetweenDistantKeyframesOfOneRealMapDoesNotRunAway) {
+  const RealMerges& m = realMerges();
+  const ProjectiveResult r =
+      registerProjective(withKeyframes(m.a, {91, 107}), withKeyframes(m.a, {124, 142}), Sim3());
+  const double rot = deg(rotationDistance(r.estimate.rotation(), Eigen::Matrix3d::Identity()));
+  std::printf("A {91 107} onto A {124 142} from the identity: %s after %d iterations, %.2f deg, scale %+.2f %%\n",
+              statusName(r.status), r.iterations, rot, 100.0 * (r.estimate.scale() - 1.0));
+  ASSERT_EQ(r.status, Status::kOk) << r.message;
+  EXPECT_LT(rot, 1.0);
+  EXPECT_LT(std::abs(r.estimate.scale() - 1.0), 0.01);
+}
+
+// B's overlap keyframes onto A's do not register: from the keyframe estimate (2.2 deg from the
+// overlap truth) or from the overlap truth itself, the residuals at the start are several times
+// their claimed noise (median chi2 7-8: the two LSD maps differ by more than a similarity there, the
+// maps' scale drifting 0.83-3.5 m per unit along each path), and the estimate slides to where fewer
+// points match, 122-125 deg off after 60 iterations (2026-12-05). Until that is solved the stage
+// stays out of the merge; what this checks is that it never calls such a result OK: an estimate
+// still moving at the iteration limit is ICP_NOT_CONVERGED (before, OK at 30 iterations whatever it
+// was).
 TEST_F(RealLsdSlam, ProjectiveRegistrationIsNeverOkFarFromTheTruth) {
   const RealMerges& m = realMerges();
   ASSERT_EQ(m.b_into_a.report.status, Status::kOk) << m.b_into_a.report.message;
   const AgentMap a_overlap = withKeyframes(m.a, {124, 142, 161, 179, 197, 223});
   const AgentMap b_overlap = withKeyframes(m.b, {125, 148, 177});
-  struct Case {
-    const char* what;
-    AgentMap source, target;
-    Sim3 start, truth;
-    double truth_rotation_deg;  // how far the truth itself may be off [deg]
-  };
-  const Case cases[] = {
-      {"A {91 107} onto A {124 142} from the identity", withKeyframes(m.a, {91, 107}), withKeyframes(m.a, {124, 142}),
-       Sim3(), Sim3(), 0.0},
-      {"B onto A (overlap keyframes) from the keyframe estimate", b_overlap, a_overlap, m.b_into_a.diagnostics.initial,
-       m.truth, 3.0},
-      {"B onto A (overlap keyframes) from the overlap truth", b_overlap, a_overlap, m.truth, m.truth, 3.0},
-  };
-  for (const Case& c : cases) {
-    const ProjectiveResult r = registerProjective(c.source, c.target, c.start);
-    const double rot = deg(rotationDistance(r.estimate.rotation(), c.truth.rotation()));
-    const double scale = r.estimate.scale() / c.truth.scale() - 1.0;
-    std::printf("%s: %s after %d iterations, %.2f deg, scale %+.1f %% from the truth\n", c.what, statusName(r.status),
-                r.iterations, rot, 100.0 * scale);
+  const std::pair<Sim3, const char*> starts[] = {{m.b_into_a.diagnostics.initial, "the keyframe estimate"},
+                                                 {m.truth, "the overlap truth"}};
+  for (const auto& [start, what] : starts) {
+    const ProjectiveResult r = registerProjective(b_overlap, a_overlap, start);
+    const double rot = deg(rotationDistance(r.estimate.rotation(), m.truth.rotation()));
+    const double scale = r.estimate.scale() / m.truth.scale() - 1.0;
+    std::printf("B onto A (overlap keyframes) from %s: %s after %d iterations, %.2f deg, scale %+.1f %% from the "
+                "overlap truth\n",
+                what, statusName(r.status), r.iterations, rot, 100.0 * scale);
     if (r.status != Status::kOk) continue;
-    EXPECT_LT(rot, c.truth_rotation_deg + 1.0) << c.what;
-    EXPECT_LT(std::abs(scale), c.truth_rotation_deg > 0.0 ? 0.25 : 0.015) << c.what;
+    // The overlap truth's own accuracy (SOURCE.txt): about 3 deg and 25 % in scale.
+    EXPECT_LT(rot, 4.0) << what;
+    EXPECT_LT(std::abs(scale), 0.25) << what;
   }
 }
 

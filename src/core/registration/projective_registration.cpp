@@ -42,9 +42,9 @@ struct FixedKeyframe {
 };
 
 struct Match {
-  Jacobian j;
-  Eigen::Vector2d r;
-  Eigen::Matrix2d c;
+  Jacobian j = Jacobian::Zero();
+  Eigen::Vector2d r = Eigen::Vector2d::Zero();
+  Eigen::Matrix2d c = Eigen::Matrix2d::Identity();
   double chi2 = 0.0;
 };
 
@@ -93,76 +93,85 @@ Eigen::Matrix<double, 2, 3> projectionJacobian(const PinholeCamera& k, const Eig
   return p;
 }
 
-// The residual pair of a point y [fixed map units], at c in the keyframe's camera (projected at
-// (u, v), projection Jacobian p), against a fixed pixel (u0, v0) with depth z0 across the edge
-// direction n, and its Jacobian in the left perturbation of the similarity.
-void residual(const FixedKeyframe& f, const Eigen::Vector3d& y, const Eigen::Vector3d& c, double u, double v,
-              const Eigen::Matrix<double, 2, 3>& p, double u0, double v0, double z0, const Eigen::Vector2d& n,
-              Eigen::Vector2d* r, Jacobian* j) {
-  const Eigen::Matrix3d m = f.map_to_camera.scale() * f.map_to_camera.rotation();
-  const Eigen::Matrix<double, 3, 7> jc = m * similarityJacobian(y);
-  (*r)(0) = c.z() - z0;
-  (*r)(1) = n.dot(Eigen::Vector2d(u - u0, v - v0));
-  j->row(0) = jc.row(2);
-  j->row(1) = n.transpose() * p * jc;
+// The residual pair of a point at c in a keyframe's camera, projected at (u, v), against a fixed
+// pixel (u0, v0) with depth z0: the depth difference, and the offset across the edge direction n.
+Eigen::Vector2d residual(const Eigen::Vector3d& c, double u, double v, double u0, double v0, double z0,
+                         const Eigen::Vector2d& n) {
+  return Eigen::Vector2d(c.z() - z0, n.dot(Eigen::Vector2d(u - u0, v - v0)));
 }
 
-// Every match of the moving points at S, with its noise and squared Mahalanobis length, in the
-// order of the points and keyframes (the same on any number of threads).
+// Its Jacobian in the left perturbation of the similarity, from jc = d(camera point) / d(perturbation)
+// and p = d(u, v) / d(camera point).
+Jacobian residualJacobian(const Eigen::Matrix<double, 3, 7>& jc, const Eigen::Matrix<double, 2, 3>& p,
+                          const Eigen::Vector2d& n) {
+  Jacobian j;
+  j.row(0) = jc.row(2);
+  j.row(1) = n.transpose() * p * jc;
+  return j;
+}
+
+// The matches of one moving point at S, one per fixed keyframe it projects into with a pixel with
+// depth near it, with their noise and squared Mahalanobis length, appended to `out`.
+void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<FixedKeyframe>& frames,
+                const PinholeCamera& k, const ProjectiveOptions& o, std::vector<Match>* out) {
+  const int rad = o.search_radius_px;
+  const double edge2 = o.edge_stddev_px * o.edge_stddev_px;
+  const Eigen::Vector3d y = s.apply(point.p);
+  const Eigen::Vector3d error = s.scale() * (s.rotation() * point.ray_error);
+  for (const FixedKeyframe& f : frames) {
+    const Eigen::Vector3d c = f.map_to_camera.apply(y);
+    if (!(c.z() > 0.0)) continue;
+    const double u = k.fx * c.x() / c.z() + k.cx, v = k.fy * c.y() / c.z() + k.cy;
+    if (!(u >= rad + 1.0 && v >= rad + 1.0 && u < f.depth.cols - rad - 2.0 && v < f.depth.rows - rad - 2.0)) continue;
+    const int cu = static_cast<int>(std::lround(u)), cv0 = static_cast<int>(std::lround(v));
+    const Eigen::Matrix<double, 2, 3> p = projectionJacobian(k, c);
+    // The moving point's own error in this keyframe's camera: the two residuals see it to first
+    // order as its depth and its offset across the edge.
+    const Eigen::Vector3d ec = f.map_to_camera.scale() * (f.map_to_camera.rotation() * error);
+    // Of the pixels with depth within the radius, the one the noise model finds likeliest to be
+    // the same point (the smallest squared Mahalanobis length of the residual pair). The nearest
+    // pixel in the image is often across a depth edge, since semi-dense depth lies on edges: on
+    // real LSD-SLAM keyframes the estimate then ran away (README, Troubleshooting).
+    Match m;
+    m.chi2 = std::numeric_limits<double>::infinity();
+    Eigen::Vector2d best_n = Eigen::Vector2d::Zero();
+    for (int dv = -rad; dv <= rad; ++dv) {
+      for (int du = -rad; du <= rad; ++du) {
+        const int bu = cu + du, bv = cv0 + dv;
+        if (!usable(f.depth.at<float>(bv, bu), f.stddev.at<float>(bv, bu), o.max_relative_stddev)) continue;
+        Eigen::Vector2d n(f.gx.at<float>(bv, bu), f.gy.at<float>(bv, bu));
+        if (!(n.norm() > 0.0)) continue;
+        n.normalize();
+        const double sd0 = f.stddev.at<float>(bv, bu);
+        const Eigen::Vector2d r = residual(c, u, v, bu, bv, f.depth.at<float>(bv, bu), n);
+        const Eigen::Vector2d seen(ec.z(), n.dot(p * ec));
+        Eigen::Matrix2d cov;
+        cov << sd0 * sd0, 0.0, 0.0, edge2;
+        cov += seen * seen.transpose();
+        const double chi2 = r.dot(Eigen::LDLT<Eigen::Matrix2d>(cov).solve(r));
+        if (chi2 < m.chi2) m.chi2 = chi2, m.r = r, m.c = cov, best_n = n;
+      }
+    }
+    if (!std::isfinite(m.chi2)) continue;
+    const Eigen::Matrix<double, 3, 7> jc = f.map_to_camera.scale() * f.map_to_camera.rotation() * similarityJacobian(y);
+    m.j = residualJacobian(jc, p, best_n);
+    out->push_back(m);
+  }
+}
+
+// Every match of the moving points at S, in the order of the points and keyframes. The points are
+// split into a fixed number of contiguous chunks, each collecting its own matches, joined in chunk
+// order: the same result on any number of threads, and a handful of allocations per iteration
+// instead of one per point.
 std::vector<Match> matchesAt(const Sim3& s, const std::vector<MovingPoint>& points,
                              const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
                              const ProjectiveOptions& o) {
-  const int rad = o.search_radius_px;
-  const double edge2 = o.edge_stddev_px * o.edge_stddev_px;
-  // The points in a fixed number of contiguous chunks, each collecting its own matches, joined in
-  // chunk order: the same result on any number of threads, and a handful of allocations per
-  // iteration instead of one per point.
   const std::size_t chunk_count = std::min<std::size_t>(kMatchChunks, std::max<std::size_t>(1, points.size()));
   std::vector<std::vector<Match>> per_chunk(chunk_count);
 #pragma omp parallel for schedule(dynamic)
   for (std::size_t chunk = 0; chunk < chunk_count; ++chunk) {
-  std::vector<Match>& found = per_chunk[chunk];
-  const std::size_t begin = points.size() * chunk / chunk_count, end = points.size() * (chunk + 1) / chunk_count;
-  for (std::size_t i = begin; i < end; ++i) {
-    const Eigen::Vector3d y = s.apply(points[i].p);
-    const Eigen::Vector3d error = s.scale() * (s.rotation() * points[i].ray_error);
-    for (const FixedKeyframe& f : frames) {
-      const Eigen::Vector3d c = f.map_to_camera.apply(y);
-      if (!(c.z() > 0.0)) continue;
-      const double u = k.fx * c.x() / c.z() + k.cx, v = k.fy * c.y() / c.z() + k.cy;
-      if (!(u >= rad + 1.0 && v >= rad + 1.0 && u < f.depth.cols - rad - 2.0 && v < f.depth.rows - rad - 2.0)) continue;
-      const int cu = static_cast<int>(std::lround(u)), cv0 = static_cast<int>(std::lround(v));
-      double best = std::numeric_limits<double>::infinity();
-      int bu = -1, bv = -1;
-      for (int dv = -rad; dv <= rad; ++dv) {
-        for (int du = -rad; du <= rad; ++du) {
-          if (!usable(f.depth.at<float>(cv0 + dv, cu + du), f.stddev.at<float>(cv0 + dv, cu + du),
-                      o.max_relative_stddev)) {
-            continue;
-          }
-          const double d2 = (cu + du - u) * (cu + du - u) + (cv0 + dv - v) * (cv0 + dv - v);
-          if (d2 < best) best = d2, bu = cu + du, bv = cv0 + dv;
-        }
-      }
-      if (bu < 0) continue;
-      Eigen::Vector2d n(f.gx.at<float>(bv, bu), f.gy.at<float>(bv, bu));
-      if (!(n.norm() > 0.0)) continue;
-      n.normalize();
-      const double z0 = f.depth.at<float>(bv, bu), sd0 = f.stddev.at<float>(bv, bu);
-      Match m;
-      const Eigen::Matrix<double, 2, 3> p = projectionJacobian(k, c);
-      residual(f, y, c, u, v, p, bu, bv, z0, n, &m.r, &m.j);
-      // The moving point's own error, as the two residuals see it (first order).
-      const Eigen::Vector3d ec = f.map_to_camera.scale() * (f.map_to_camera.rotation() * error);
-      const Eigen::Vector2d seen(ec.z(), n.dot(p * ec));
-      m.c << sd0 * sd0, 0.0, 0.0, edge2;
-      m.c += seen * seen.transpose();
-      const Eigen::LDLT<Eigen::Matrix2d> ldlt(m.c);
-      m.chi2 = m.r.dot(ldlt.solve(m.r));
-      if (!std::isfinite(m.chi2)) continue;
-      found.push_back(m);
-    }
-  }
+    const std::size_t begin = points.size() * chunk / chunk_count, end = points.size() * (chunk + 1) / chunk_count;
+    for (std::size_t i = begin; i < end; ++i) matchPoint(s, points[i], frames, k, o, &per_chunk[chunk]);
   }
   std::size_t total = 0;
   for (const auto& v : per_chunk) total += v.size();
@@ -270,7 +279,7 @@ const ParamSchema<ProjectiveOptions>& paramSchema<ProjectiveOptions>() {
   static const ParamSchema<O> schema{"projective", {
       {"edge_stddev_px", &O::edge_stddev_px, R::above(0), "px", "standard deviation of an edge's position across it"},
       {"search_radius_px", &O::search_radius_px, R::closed(0, 5), "px",
-       "a projected point is matched with the nearest pixel with depth within this radius"},
+       "a projected point is matched with the likeliest pixel with depth within this radius"},
       {"max_relative_stddev", &O::max_relative_stddev, R::open(0, 1), "-",
        "pixels whose depth claims a larger relative standard deviation are not used"},
       {"pixel_step", &O::pixel_step, R::atLeast(1), "", "every n-th usable pixel of the moving map becomes a point"},
