@@ -346,6 +346,9 @@ TEST_F(RealLsdSlam, ProjectiveRegistrationIsNeverOkFarFromTheTruth) {
     std::printf("B onto A (overlap keyframes) from %s: %s after %d iterations, %.2f deg, scale %+.1f %% from the "
                 "overlap truth\n",
                 what, statusName(r.status), r.iterations, rot, 100.0 * scale);
+    // The registration ran on these keyframes (their depth and variance were accepted).
+    EXPECT_NE(r.status, Status::kInvalidInput) << what << ": " << r.message;
+    EXPECT_GT(r.iterations, 0) << what;
     if (r.status != Status::kOk) continue;
     // The overlap truth's own accuracy (SOURCE.txt): about 3 deg and 25 % in scale.
     EXPECT_LT(rot, 4.0) << what;

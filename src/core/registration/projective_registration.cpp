@@ -23,6 +23,8 @@ constexpr int kMinMatches = 7;
 constexpr double kMedianChi2Of2 = 1.3863;
 // The moving points are matched in this many contiguous chunks (matchesAt()).
 constexpr std::size_t kMatchChunks = 64;
+// The differential stop check's thresholds: the ICP's defaults.
+const IcpOptions kStop;
 
 using Vector7d = Eigen::Matrix<double, 7, 1>;
 using Jacobian = Eigen::Matrix<double, 2, 7>;
@@ -235,11 +237,12 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
     const Vector7d step = -ldlt.solve(g);
     if (!step.allFinite()) return d;
     d.iterations = it + 1;
-    // Converged when the step rotates by less than 1e-4 rad, changes the scale by less than 1e-4
-    // and moves by less than 1e-4 of the moving points' RMS radius: the ICP's differential check
-    // (IcpOptions), far below the noise of either map.
-    const bool small = step.segment<3>(3).norm() < 1e-4 && std::abs(step(6)) < 1e-4 &&
-                       step.head<3>().norm() < 1e-4 * radius * d.estimate.scale();
+    // Converged when the step passes the ICP's differential check at its default thresholds
+    // (IcpOptions: 1e-4 rad, 1e-4 in scale, 1e-4 of the moving points' RMS radius), far below the
+    // noise of either map.
+    const bool small = step.segment<3>(3).norm() < kStop.min_rotation_change &&
+                       std::abs(step(6)) < kStop.min_scale_change &&
+                       step.head<3>().norm() < kStop.min_relative_translation_change * radius * d.estimate.scale();
     // Re-made matches let the estimate creep: successive steps point the same way (cosine about
     // 0.99 in the information's metric) and shrink slowly. The rest of their geometric series is
     // taken at once, as the ICP does (IcpOptions::extrapolation); a wrong guess costs one step.
