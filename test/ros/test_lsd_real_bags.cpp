@@ -325,13 +325,15 @@ TEST_F(RealLsdSlam, ProjectiveRegistrationBetweenDistantKeyframesOfOneRealMapDoe
 }
 
 // B's overlap keyframes onto A's do not register: from the keyframe estimate (2.2 deg from the
-// overlap truth) or from the overlap truth itself, the residuals at the start are several times
-// their claimed noise (median chi2 7-8: the two LSD maps differ by more than a similarity there, the
-// maps' scale drifting 0.83-3.5 m per unit along each path), and the estimate slides to where fewer
-// points match, 122-125 deg off after 60 iterations (2026-12-05). Until that is solved the stage
-// stays out of the merge; what this checks is that it never calls such a result OK: an estimate
-// still moving at the iteration limit is ICP_NOT_CONVERGED (before, OK at 30 iterations whatever it
-// was).
+// overlap truth) or from the overlap truth itself, the depth residuals at the start are several
+// times their claimed noise (the two LSD maps differ by more than a similarity there, the maps'
+// scale drifting 0.83-3.5 m per unit along each path). Weighed by LSD-SLAM's per-pixel variance
+// alone, the estimate slid 122-125 deg away in 60 iterations (2026-12-05). With the two maps' depth
+// disagreement measured from the residuals and weighed in (rho 0.13-0.15 here; 0 within map A,
+// tests above), it stays within 5.0 and 8.2 deg of the overlap truth, but still creeps at the
+// iteration limit (0.02-0.03 deg per iteration), so it is ICP_NOT_CONVERGED. Until that is solved
+// the stage stays out of the merge; what this checks is that it never calls such a result OK, and
+// that it no longer slides away.
 TEST_F(RealLsdSlam, ProjectiveRegistrationIsNeverOkFarFromTheTruth) {
   const RealMerges& m = realMerges();
   ASSERT_EQ(m.b_into_a.report.status, Status::kOk) << m.b_into_a.report.message;
@@ -344,11 +346,15 @@ TEST_F(RealLsdSlam, ProjectiveRegistrationIsNeverOkFarFromTheTruth) {
     const double rot = deg(rotationDistance(r.estimate.rotation(), m.truth.rotation()));
     const double scale = r.estimate.scale() / m.truth.scale() - 1.0;
     std::printf("B onto A (overlap keyframes) from %s: %s after %d iterations, %.2f deg, scale %+.1f %% from the "
-                "overlap truth\n",
-                what, statusName(r.status), r.iterations, rot, 100.0 * scale);
+                "overlap truth, depth disagreement %.3f\n",
+                what, statusName(r.status), r.iterations, rot, 100.0 * scale, r.depth_disagreement);
     // The registration ran on these keyframes (their depth and variance were accepted).
     EXPECT_NE(r.status, Status::kInvalidInput) << what << ": " << r.message;
     EXPECT_GT(r.iterations, 0) << what;
+    // The two maps' depth disagrees far beyond its per-pixel variance, and that is measured.
+    EXPECT_GT(r.depth_disagreement, 0.05) << what;
+    // Converged or not, the estimate does not slide away (122-125 deg without the disagreement).
+    EXPECT_LT(rot, 10.0) << what;
     if (r.status != Status::kOk) continue;
     // The overlap truth's own accuracy (SOURCE.txt): about 3 deg and 25 % in scale.
     EXPECT_LT(rot, 4.0) << what;
@@ -440,6 +446,7 @@ TEST(SimulatedLsdSlam, ATwoPairMergeCoversTheSpreadInEveryDirection) {
   checkDriftingWorld(PCR_PRO_SIM_LSD_TWO_PAIR_WORLD_DIR, &used_pairs);
   EXPECT_EQ(used_pairs, 2) << "the world no longer has what this test is about";
 }
+
 
 }  // namespace
 }  // namespace ros_bridge

@@ -11,7 +11,9 @@
  * residuals: the point's depth against that pixel's depth, and its offset across the image edge
  * there (along the grey image's gradient). Both are weighed by the two maps' noise: the pixel's
  * depth standard deviation, edge_stddev_px across the edge, and the moving point's error along its
- * own ray as seen from the other keyframe. The candidate whose residual pair is the shortest in that
+ * own ray as seen from the other keyframe, and the depth also by the two maps' relative depth
+ * disagreement beyond that noise (scale drift, distortion), measured from the depth residuals every
+ * iteration (depth_disagreement). The candidate whose residual pair is the shortest in that
  * metric (the likeliest to be the same point) is the match. Gauss-Newton on the 7 DoF with a Cauchy
  * kernel (width in robust spreads of the whitened residuals), matches re-made every iteration,
  * until the steps are negligible (the ICP's differential check) or max_iterations
@@ -72,6 +74,13 @@ struct ProjectiveOptions {
   /// kExtrapolationMinCosine) and shrink, take the rest of their geometric series at once (at most
   /// kExtrapolationMaxFactor times the step), as the ICP does (IcpOptions::extrapolation).
   bool extrapolation = true;
+  /// Estimate the two maps' relative depth disagreement beyond their per-pixel noise (scale drift,
+  /// distortion) from the depth residuals every iteration, and weigh the depth by it: each pixel's
+  /// depth variance gains (rho z)^2, rho the smallest value for which the median squared whitened
+  /// depth residual is a chi-square's with 1 DoF (0.455). rho is 0 where the depth residuals fit
+  /// their per-pixel variance. Off: the per-pixel variance alone, under which two real LSD-SLAM maps
+  /// slid 21-165 deg away (README, Troubleshooting).
+  bool depth_disagreement = true;
 };
 
 /// Every parameter of ProjectiveOptions: key, type, default (the member initialiser), range, unit, doc.
@@ -89,10 +98,15 @@ struct ProjectiveResult {
   std::string message;
   Sim3 estimate;                           ///< S_target_source
   Matrix7d covariance = Matrix7d::Zero();  ///< the Gauss-Newton normal matrix's inverse (per-residual noise only)
-  /// Median squared Mahalanobis length of the whitened residual pairs at the estimate [-]
-  /// (1.39 for a single residual pair that follows its noise model exactly; less, since each match
-  /// is the likeliest of several pixels: 0.3-0.4 on the bench's worlds at the truth).
+  /// Median squared Mahalanobis length of the whitened residual pairs at the estimate, under the
+  /// two maps' per-pixel noise alone (without depth_disagreement) [-] (1.39 for a single residual
+  /// pair that follows its noise model exactly; less, since each match is the likeliest of several
+  /// pixels: 0.3-0.4 on the bench's worlds at the truth). The direction whose value is smaller is
+  /// the one kept.
   double median_chi2 = 0.0;
+  /// The two maps' relative depth disagreement rho at the estimate [-] (0 with the option off, or
+  /// where the depth residuals fit their per-pixel noise; ProjectiveOptions::depth_disagreement).
+  double depth_disagreement = 0.0;
   int matches = 0;         ///< point-keyframe matches at the estimate
   bool reversed = false;   ///< the target's points moved into the source's keyframes, inverted
   int iterations = 0;

@@ -25,6 +25,12 @@ constexpr double kMedianChi2Of2 = 1.3863;
 constexpr std::size_t kMatchChunks = 64;
 // The differential stop check's thresholds: the ICP's defaults.
 const IcpOptions kStop;
+// Median of a chi-square with 1 DoF: the median squared whitened depth residual of matches whose
+// depth follows its noise model (depthDisagreement()).
+constexpr double kMedianChi2Of1 = 0.4549;
+// The two maps' relative depth disagreement is searched up to this [-] (100 % of the depth: beyond
+// it the depth says nothing).
+constexpr double kMaxDepthDisagreement = 1.0;
 
 using Vector7d = Eigen::Matrix<double, 7, 1>;
 using Jacobian = Eigen::Matrix<double, 2, 7>;
@@ -33,7 +39,8 @@ using Jacobian = Eigen::Matrix<double, 2, 7>;
 // of its depth (along its view ray) [map units].
 struct MovingPoint {
   Eigen::Vector3d p;
-  Eigen::Vector3d ray_error;
+  Eigen::Vector3d ray_error;  // per unit of depth standard deviation [map units per camera unit]
+  double depth_var = 0.0;     // its depth's variance [camera units^2]
 };
 
 // A keyframe of the fixed map: map -> camera, its depth and standard deviation [camera units] and
@@ -48,7 +55,23 @@ struct Match {
   Eigen::Vector2d r = Eigen::Vector2d::Zero();
   Eigen::Matrix2d c = Eigen::Matrix2d::Identity();
   double chi2 = 0.0;
+  // The parts of c: the fixed pixel's depth variance and squared depth, the edge's variance, the
+  // moving point's depth variance, and what the residuals see of a unit of its depth error.
+  double fixed_var = 0.0, fixed_depth2 = 0.0, edge_var = 0.0, moving_var = 0.0;
+  Eigen::Vector2d seen = Eigen::Vector2d::Zero();
 };
+
+// The residual pair's covariance when the fixed pixel's depth also disagrees with the moving map by
+// a relative rho (depthDisagreement()). Only the depth residual gains it: the same relative error
+// put on the moving point's ray as well (what it sees in the other keyframe) made the real LSD-SLAM
+// maps slide 18-140 deg away again, since the IRLS weighs a covariance that grows with the estimate's
+// scale without paying for it (README, Troubleshooting).
+Eigen::Matrix2d covarianceAt(const Match& m, double rho2) {
+  Eigen::Matrix2d c;
+  c << m.fixed_var + rho2 * m.fixed_depth2, 0.0, 0.0, m.edge_var;
+  c += m.moving_var * m.seen * m.seen.transpose();
+  return c;
+}
 
 bool usable(float z, float sd, double max_relative) {
   return std::isfinite(z) && std::isfinite(sd) && z > 0.0f && sd > 0.0f && sd <= max_relative * z;
@@ -66,7 +89,8 @@ std::vector<MovingPoint> movingPoints(const AgentMap& map, const ProjectiveOptio
         if (!usable(z[col], sd[col], o.max_relative_stddev) || n++ % o.pixel_step != 0) continue;
         const Eigen::Vector3d ray((col - k.cx) / k.fx, (row - k.cy) / k.fy, 1.0);
         const Eigen::Vector3d camera_point = static_cast<double>(z[col]) * ray;
-        out.push_back({kf.pose.apply(camera_point), kf.pose.scale() * (kf.pose.rotation() * (sd[col] * ray))});
+        out.push_back({kf.pose.apply(camera_point), kf.pose.scale() * (kf.pose.rotation() * ray),
+                       static_cast<double>(sd[col]) * sd[col]});
       }
     }
   }
@@ -113,9 +137,11 @@ Jacobian residualJacobian(const Eigen::Matrix<double, 3, 7>& jc, const Eigen::Ma
 }
 
 // The matches of one moving point at S, one per fixed keyframe it projects into with a pixel with
-// depth near it, with their noise and squared Mahalanobis length, appended to `out`.
+// depth near it, with their noise and squared Mahalanobis length, appended to `out`. rho2 is the
+// squared relative depth disagreement of the two maps (depthDisagreement()): the depth residual's
+// variance gains rho2 z0^2.
 void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<FixedKeyframe>& frames,
-                const PinholeCamera& k, const ProjectiveOptions& o, std::vector<Match>* out) {
+                const PinholeCamera& k, const ProjectiveOptions& o, double rho2, std::vector<Match>* out) {
   const int rad = o.search_radius_px;
   const double edge2 = o.edge_stddev_px * o.edge_stddev_px;
   const Eigen::Vector3d y = s.apply(point.p);
@@ -144,14 +170,17 @@ void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<Fixed
         Eigen::Vector2d n(f.gx.at<float>(bv, bu), f.gy.at<float>(bv, bu));
         if (!(n.norm() > 0.0)) continue;
         n.normalize();
-        const double sd0 = f.stddev.at<float>(bv, bu);
-        const Eigen::Vector2d r = residual(c, u, v, bu, bv, f.depth.at<float>(bv, bu), n);
-        const Eigen::Vector2d seen(ec.z(), n.dot(p * ec));
-        Eigen::Matrix2d cov;
-        cov << sd0 * sd0, 0.0, 0.0, edge2;
-        cov += seen * seen.transpose();
-        const double chi2 = r.dot(Eigen::LDLT<Eigen::Matrix2d>(cov).solve(r));
-        if (chi2 < m.chi2) m.chi2 = chi2, m.r = r, m.c = cov, best_n = n;
+        const double sd0 = f.stddev.at<float>(bv, bu), z0 = f.depth.at<float>(bv, bu);
+        Match candidate;
+        candidate.r = residual(c, u, v, bu, bv, z0, n);
+        candidate.fixed_var = sd0 * sd0;
+        candidate.fixed_depth2 = z0 * z0;
+        candidate.edge_var = edge2;
+        candidate.moving_var = point.depth_var;
+        candidate.seen = Eigen::Vector2d(ec.z(), n.dot(p * ec));
+        candidate.c = covarianceAt(candidate, rho2);
+        candidate.chi2 = candidate.r.dot(Eigen::LDLT<Eigen::Matrix2d>(candidate.c).solve(candidate.r));
+        if (candidate.chi2 < m.chi2) m = candidate, best_n = n;
       }
     }
     if (!std::isfinite(m.chi2)) continue;
@@ -167,13 +196,13 @@ void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<Fixed
 // instead of one per point.
 std::vector<Match> matchesAt(const Sim3& s, const std::vector<MovingPoint>& points,
                              const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
-                             const ProjectiveOptions& o) {
+                             const ProjectiveOptions& o, double rho2) {
   const std::size_t chunk_count = std::min<std::size_t>(kMatchChunks, std::max<std::size_t>(1, points.size()));
   std::vector<std::vector<Match>> per_chunk(chunk_count);
 #pragma omp parallel for schedule(dynamic)
   for (std::size_t chunk = 0; chunk < chunk_count; ++chunk) {
     const std::size_t begin = points.size() * chunk / chunk_count, end = points.size() * (chunk + 1) / chunk_count;
-    for (std::size_t i = begin; i < end; ++i) matchPoint(s, points[i], frames, k, o, &per_chunk[chunk]);
+    for (std::size_t i = begin; i < end; ++i) matchPoint(s, points[i], frames, k, o, rho2, &per_chunk[chunk]);
   }
   std::size_t total = 0;
   for (const auto& v : per_chunk) total += v.size();
@@ -187,10 +216,64 @@ struct Direction {
   Sim3 estimate;
   Matrix7d information = Matrix7d::Zero();
   double median_chi2 = std::numeric_limits<double>::infinity();
+  // The same under the two maps' per-pixel noise alone (rho = 0): how well the direction's data fit
+  // that model, the direction choice's measure (rho makes every direction's depth fit by construction).
+  double per_pixel_median_chi2 = std::numeric_limits<double>::infinity();
+  double rho2 = 0.0;  // squared relative depth disagreement (depthDisagreement())
   int matches = 0, iterations = 0, extrapolations = 0;
   bool ok = false;
   bool converged = false;  // the differential check passed before max_iterations
 };
+
+// The two maps' relative depth disagreement beyond their per-pixel noise, from the matches' own
+// depth residuals: the smallest rho >= 0 for which the median of r_d^2 / (depth_var + rho^2 z0^2)
+// is the median of a chi-square with 1 DoF, i.e. what a depth residual that follows its noise model
+// would have. Zero when the depth residuals are no larger than the two maps' per-pixel variance says
+// (within one LSD-SLAM map; the simulator's worlds without drift). Two independent monocular maps
+// also differ by their scale drift and distortion, which grow with depth: on the real LSD-SLAM maps
+// of 7-Scenes rho was 0.13-0.25, and without it the depth residuals, weighed as if exact to their
+// variance, made the estimate slide 21-165 deg away (README, Troubleshooting). The matches' chi2 and
+// covariances are updated to rho (the pixel chosen per match stays the one chosen at the previous
+// rho). Every match is the likeliest pixel of several, which lowers its residual: rho is then, if
+// anything, too small, never raised by the selection. @return rho^2
+double depthDisagreement(std::vector<Match>* matches, double previous_rho2) {
+  std::vector<double> q(matches->size());
+  const auto median_at = [&](double rho2) {
+    for (std::size_t i = 0; i < matches->size(); ++i) {
+      const Match& m = (*matches)[i];
+      q[i] = m.r(0) * m.r(0) / covarianceAt(m, rho2)(0, 0);
+    }
+    return upperMedian(&q);
+  };
+  double rho2 = 0.0;
+  if (median_at(0.0) > kMedianChi2Of1) {
+    // The median falls as rho grows: bisection on log(rho^2), to 0.1 % in rho^2.
+    double lo = 1e-12, hi = kMaxDepthDisagreement * kMaxDepthDisagreement;
+    while (hi > lo * 1.001) {
+      const double mid = std::sqrt(lo * hi);
+      (median_at(mid) > kMedianChi2Of1 ? lo : hi) = mid;
+    }
+    rho2 = hi;
+  }
+  if (rho2 == previous_rho2) return rho2;
+  for (Match& m : *matches) {
+    m.c = covarianceAt(m, rho2);
+    m.chi2 = m.r.dot(Eigen::LDLT<Eigen::Matrix2d>(m.c).solve(m.r));
+  }
+  return rho2;
+}
+
+// The matches at S with the two maps' depth disagreement re-estimated from them (when the option is
+// on): d->rho2 is updated.
+std::vector<Match> matchesWithDisagreement(const Sim3& s, const std::vector<MovingPoint>& points,
+                                           const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
+                                           const ProjectiveOptions& o, Direction* d) {
+  std::vector<Match> matches = matchesAt(s, points, frames, k, o, d->rho2);
+  if (o.depth_disagreement && static_cast<int>(matches.size()) >= kMinMatches) {
+    d->rho2 = depthDisagreement(&matches, d->rho2);
+  }
+  return matches;
+}
 
 // The IRLS normal equations of the matches: Cauchy weights on the squared Mahalanobis lengths
 // over their robust spread (their median over the chi-square's, at least 1: residuals that follow
@@ -227,7 +310,7 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
   const double radius = std::sqrt(radius2);
   Vector7d previous = Vector7d::Zero();
   for (int it = 0; it < o.max_iterations; ++it) {
-    const std::vector<Match> matches = matchesAt(d.estimate, points, frames, k, o);
+    const std::vector<Match> matches = matchesWithDisagreement(d.estimate, points, frames, k, o, &d);
     if (static_cast<int>(matches.size()) < kMinMatches) return d;
     Vector7d g;
     normalEquations(matches, o.kernel_width, &d.information, &g, &d.median_chi2);
@@ -264,10 +347,17 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
     }
   }
   // The noise model's fit and the information at the final estimate.
-  const std::vector<Match> matches = matchesAt(d.estimate, points, frames, k, o);
+  const std::vector<Match> matches = matchesWithDisagreement(d.estimate, points, frames, k, o, &d);
   if (static_cast<int>(matches.size()) < kMinMatches) return d;
   Vector7d g;
   normalEquations(matches, o.kernel_width, &d.information, &g, &d.median_chi2);
+  d.per_pixel_median_chi2 = d.median_chi2;
+  if (d.rho2 > 0.0) {
+    std::vector<double> chi2;
+    chi2.reserve(matches.size());
+    for (const Match& m : matches) chi2.push_back(m.r.dot(Eigen::LDLT<Eigen::Matrix2d>(covarianceAt(m, 0.0)).solve(m.r)));
+    d.per_pixel_median_chi2 = upperMedian(&chi2);
+  }
   d.matches = static_cast<int>(matches.size());
   d.ok = d.estimate.matrix().allFinite() && d.information.allFinite();
   return d;
@@ -289,6 +379,8 @@ const ParamSchema<ProjectiveOptions>& paramSchema<ProjectiveOptions>() {
       {"max_iterations", &O::max_iterations, R::atLeast(1), "", "Gauss-Newton iterations at most"},
       {"kernel_width", &O::kernel_width, R::above(0), "-", "Cauchy kernel width in robust spreads"},
       {"extrapolation", &O::extrapolation, R::any(), "", "take the rest of a creeping series of steps at once"},
+      {"depth_disagreement", &O::depth_disagreement, R::any(), "",
+       "estimate the two maps' relative depth disagreement beyond their per-pixel noise and weigh the depth by it"},
   }};
   return schema;
 }
@@ -350,7 +442,8 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
                   " point-keyframe matches in either direction";
     return out;
   }
-  const bool use_backward = backward.ok && (!forward.ok || backward.median_chi2 < forward.median_chi2);
+  const bool use_backward =
+      backward.ok && (!forward.ok || backward.per_pixel_median_chi2 < forward.per_pixel_median_chi2);
   const Direction& d = use_backward ? backward : forward;
   const Direction& other = use_backward ? forward : backward;
   const Eigen::LDLT<Matrix7d> ldlt(d.information);
@@ -365,17 +458,23 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
   out.status = d.converged ? Status::kOk : Status::kIcpNotConverged;
   out.estimate = d.estimate;
   out.extrapolations = d.extrapolations;
-  out.median_chi2 = d.median_chi2;
+  out.median_chi2 = d.per_pixel_median_chi2;
+  out.depth_disagreement = std::sqrt(d.rho2);
   out.matches = d.matches;
   out.reversed = use_backward;
   out.iterations = d.iterations;
   out.other_estimate = other.ok ? other.estimate : initial;
-  out.other_median_chi2 = other.ok ? other.median_chi2 : std::numeric_limits<double>::infinity();
+  out.other_median_chi2 = other.ok ? other.per_pixel_median_chi2 : std::numeric_limits<double>::infinity();
   char chi2[32];
   std::snprintf(chi2, sizeof chi2, "%.3g", out.median_chi2);
   out.message = std::string(use_backward ? "the target's points into the source's keyframes"
                                          : "the source's points into the target's keyframes") +
                 ", " + std::to_string(out.matches) + " matches, median chi2 " + chi2;
+  if (options.depth_disagreement) {
+    char rho[32];
+    std::snprintf(rho, sizeof rho, "%.3g", 100.0 * out.depth_disagreement);
+    out.message += std::string(", depth disagreement ") + rho + " %";
+  }
   if (!d.converged) {
     out.message = "projective registration: did not converge within " + std::to_string(options.max_iterations) +
                   " iterations (" + out.message + ")";
