@@ -329,11 +329,12 @@ TEST_F(RealLsdSlam, ProjectiveRegistrationBetweenDistantKeyframesOfOneRealMapDoe
 // times their claimed noise (the two LSD maps differ by more than a similarity there, the maps'
 // scale drifting 0.83-3.5 m per unit along each path). Weighed by LSD-SLAM's per-pixel variance
 // alone, the estimate slid 122-125 deg away in 60 iterations (2026-12-05). With the two maps' depth
-// disagreement measured from the residuals and weighed in (rho 0.13-0.15 here; 0 within map A,
-// tests above), it stays within 5.0 and 8.2 deg of the overlap truth, but still creeps at the
-// iteration limit (0.02-0.03 deg per iteration), so it is ICP_NOT_CONVERGED. Until that is solved
-// the stage stays out of the merge; what this checks is that it never calls such a result OK, and
-// that it no longer slides away.
+// disagreement measured from the residuals and weighed in (rho 0.13 here; 0 within map A, tests
+// above), it is 5.0 and 8.2 deg from the overlap truth at the limit of 60 iterations, but it still
+// slides, only slower: left running from the keyframe estimate, 12 deg at 120 iterations and 27 deg
+// at 240, while more points find a pixel. So it is ICP_NOT_CONVERGED. Until that is solved the stage
+// stays out of the merge; what this checks is that it never calls such a result OK, and that the
+// disagreement is measured and slows the slide.
 TEST_F(RealLsdSlam, ProjectiveRegistrationIsNeverOkFarFromTheTruth) {
   const RealMerges& m = realMerges();
   ASSERT_EQ(m.b_into_a.report.status, Status::kOk) << m.b_into_a.report.message;
@@ -353,7 +354,7 @@ TEST_F(RealLsdSlam, ProjectiveRegistrationIsNeverOkFarFromTheTruth) {
     EXPECT_GT(r.iterations, 0) << what;
     // The two maps' depth disagrees far beyond its per-pixel variance, and that is measured.
     EXPECT_GT(r.depth_disagreement, 0.05) << what;
-    // Converged or not, the estimate does not slide away (122-125 deg without the disagreement).
+    // Within the 60 iterations it has slid less than 10 deg (122-125 deg without the disagreement).
     EXPECT_LT(rot, 10.0) << what;
     if (r.status != Status::kOk) continue;
     // The overlap truth's own accuracy (SOURCE.txt): about 3 deg and 25 % in scale.
