@@ -108,7 +108,7 @@ TEST(Projective, ACreepingEstimateIsExtrapolatedAndAnUnfinishedOneIsNotOk) {
 // makes it: every keyframe's depth of both maps scaled by its own factor exp(0.1 g), g ~ N(0, 1),
 // poses untouched. The stage measures the disagreement (rho) from its depth residuals and weighs the
 // depth by it. Measured on seeds 0-2 from 1 deg off: rho 0.031-0.079; 1.07-4.48 deg from the truth
-// (mean 2.4) with it, 2.2-15.3 deg (mean 6.6, seed 2 still moving after 60 iterations) without.
+// (mean 2.4) with it, 2.2-15.4 deg (mean 6.6, seed 2 still moving after 60 iterations) without.
 // On the same worlds undistorted, rho is 0 (first test).
 TEST(Projective, TheMapsDepthDisagreementIsMeasuredAndWeighed) {
   Eigen::Matrix<double, 7, 1> kick;

@@ -53,7 +53,7 @@ struct FixedKeyframe {
 struct Match {
   Jacobian j = Jacobian::Zero();
   Eigen::Vector2d r = Eigen::Vector2d::Zero();
-  Eigen::Matrix2d c = Eigen::Matrix2d::Identity();
+  Eigen::Matrix2d information = Eigen::Matrix2d::Identity();  // the residual pair's inverse covariance
   double chi2 = 0.0;
   // The parts of c: the fixed pixel's depth variance and squared depth, the edge's variance, the
   // moving point's depth variance, and what the residuals see of a unit of its depth error.
@@ -71,6 +71,12 @@ Eigen::Matrix2d covarianceAt(const Match& m, double rho2) {
   c << m.fixed_var + rho2 * m.fixed_depth2, 0.0, 0.0, m.edge_var;
   c += m.moving_var * m.seen * m.seen.transpose();
   return c;
+}
+
+// Sets the match's information (the inverse of covarianceAt()) and squared Mahalanobis length.
+void setNoise(double rho2, Match* m) {
+  m->information = covarianceAt(*m, rho2).inverse();
+  m->chi2 = m->r.dot(m->information * m->r);
 }
 
 bool usable(float z, float sd, double max_relative) {
@@ -178,8 +184,7 @@ void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<Fixed
         candidate.edge_var = edge2;
         candidate.moving_var = point.depth_var;
         candidate.seen = Eigen::Vector2d(ec.z(), n.dot(p * ec));
-        candidate.c = covarianceAt(candidate, rho2);
-        candidate.chi2 = candidate.r.dot(Eigen::LDLT<Eigen::Matrix2d>(candidate.c).solve(candidate.r));
+        setNoise(rho2, &candidate);
         if (candidate.chi2 < m.chi2) m = candidate, best_n = n;
       }
     }
@@ -257,8 +262,7 @@ double depthDisagreement(std::vector<Match>* matches, double previous_rho2) {
   }
   if (rho2 == previous_rho2) return rho2;
   for (Match& m : *matches) {
-    m.c = covarianceAt(m, rho2);
-    m.chi2 = m.r.dot(Eigen::LDLT<Eigen::Matrix2d>(m.c).solve(m.r));
+    setNoise(rho2, &m);
   }
   return rho2;
 }
@@ -288,7 +292,7 @@ void normalEquations(const std::vector<Match>& matches, double width, Matrix7d* 
   g->setZero();
   for (const Match& m : matches) {
     const double w = 1.0 / (1.0 + m.chi2 / (spread * width * width));
-    const Eigen::Matrix2d ci = m.c.inverse();
+    const Eigen::Matrix2d& ci = m.information;
     *h += w * m.j.transpose() * ci * m.j;
     *g += w * m.j.transpose() * ci * m.r;
   }
@@ -355,7 +359,7 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
   if (d.rho2 > 0.0) {
     std::vector<double> chi2;
     chi2.reserve(matches.size());
-    for (const Match& m : matches) chi2.push_back(m.r.dot(Eigen::LDLT<Eigen::Matrix2d>(covarianceAt(m, 0.0)).solve(m.r)));
+    for (const Match& m : matches) chi2.push_back(m.r.dot(covarianceAt(m, 0.0).inverse() * m.r));
     d.per_pixel_median_chi2 = upperMedian(&chi2);
   }
   d.matches = static_cast<int>(matches.size());
