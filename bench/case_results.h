@@ -41,6 +41,9 @@ struct PeerRun {
   bool ran = false;
   Score score;
   double ms = 0.0;
+  /// The run's own status name, when it has one (the projective registration's); empty otherwise.
+  /// An ICP_NOT_CONVERGED run is not `ran`, but its estimate so far is scored (score.has).
+  std::string status;
 };
 
 /// Ours and the peers on one case.
