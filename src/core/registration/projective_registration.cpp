@@ -35,8 +35,8 @@ constexpr double kMaxDepthDisagreement = 1.0;
 using Vector7d = Eigen::Matrix<double, 7, 1>;
 using Jacobian = Eigen::Matrix<double, 2, 7>;
 
-// A pixel of the moving map's keyframes as a 3D point in its map, with the 1-sigma error vector
-// of its depth (along its view ray) [map units].
+// A pixel of the moving map's keyframes as a 3D point in its map, with its depth error: the error
+// vector along its view ray per unit of depth, and its depth's variance.
 struct MovingPoint {
   Eigen::Vector3d p;
   Eigen::Vector3d ray_error;  // per unit of depth standard deviation [map units per camera unit]
@@ -55,8 +55,9 @@ struct Match {
   Eigen::Vector2d r = Eigen::Vector2d::Zero();
   Eigen::Matrix2d information = Eigen::Matrix2d::Identity();  // the residual pair's inverse covariance
   double chi2 = 0.0;
-  // The parts of c: the fixed pixel's depth variance and squared depth, the edge's variance, the
-  // moving point's depth variance, and what the residuals see of a unit of its depth error.
+  // The parts of the pair's covariance (covarianceAt()): the fixed pixel's depth variance and squared
+  // depth, the edge's variance, the moving point's depth variance, and what the two residuals see of
+  // a unit of its depth error.
   double fixed_var = 0.0, fixed_depth2 = 0.0, edge_var = 0.0, moving_var = 0.0;
   Eigen::Vector2d seen = Eigen::Vector2d::Zero();
 };
@@ -231,14 +232,14 @@ struct Direction {
 };
 
 // The two maps' relative depth disagreement beyond their per-pixel noise, from the matches' own
-// depth residuals: the smallest rho >= 0 for which the median of r_d^2 / (depth_var + rho^2 z0^2)
-// is the median of a chi-square with 1 DoF, i.e. what a depth residual that follows its noise model
+// depth residuals: the smallest rho >= 0 for which the median of r_d^2 / (v + rho^2 z0^2), v the
+// depth residual's variance from the two maps' per-pixel noise, is the median of a chi-square with 1 DoF, i.e. what a depth residual that follows its noise model
 // would have. Zero when the depth residuals are no larger than the two maps' per-pixel variance says
 // (within one LSD-SLAM map; the simulator's worlds without drift). Two independent monocular maps
 // also differ by their scale drift and distortion, which grow with depth: on the real LSD-SLAM maps
 // of 7-Scenes rho was 0.13-0.25, and without it the depth residuals, weighed as if exact to their
 // variance, made the estimate slide 21-165 deg away (README, Troubleshooting). The matches' chi2 and
-// covariances are updated to rho (the pixel chosen per match stays the one chosen at the previous
+// information are updated to rho (the pixel chosen per match stays the one chosen at the previous
 // rho). Every match is the likeliest pixel of several, which lowers its residual: rho is then, if
 // anything, too small, never raised by the selection. @return rho^2
 double depthDisagreement(std::vector<Match>* matches, double previous_rho2) {
