@@ -291,8 +291,9 @@ AgentMap withKeyframes(const AgentMap& map, const std::vector<long>& ids) {
 
 // Within one map, between interleaved keyframes of A's overlap region, the identity is the truth (as
 // far as LSD-SLAM's map is consistent with itself): the keyframes' depth, poses and variance are read
-// as the stage expects them. Measured 2026-12-05: converged 0.12 deg and -0.2 % away, median chi2
-// 0.31 (0.72 at the identity before each point took the likeliest of the pixels near it).
+// as the stage expects them. Measured 2026-12-05: converged 0.19 deg and +0.2 % away, median chi2
+// 0.32, no depth disagreement (0.12 deg and -0.2 % before the grey levels were compared; median chi2
+// 0.72 at the identity before each point took the likeliest of the pixels near it).
 TEST_F(RealLsdSlam, ProjectiveRegistrationWithinOneRealMapStaysAtTheIdentity) {
   const RealMerges& m = realMerges();
   ASSERT_TRUE(hasDepthUncertainty(m.a) && hasDepthUncertainty(m.b));
@@ -310,8 +311,8 @@ TEST_F(RealLsdSlam, ProjectiveRegistrationWithinOneRealMapStaysAtTheIdentity) {
 // point was matched with the nearest pixel with depth (2026-12-05): its steps kept one direction and
 // grew, every step lowered the cost of its own matches and the next matching raised it more (semi-
 // dense depth lies on depth edges, and the nearest pixel is often across one); 37 deg off after 60
-// iterations with extrapolation, 3.1 deg without. With the likeliest pixel it converges 0.57 deg
-// and -0.2 % away.
+// iterations with extrapolation, 3.1 deg without. With the likeliest pixel it converged 0.57 deg
+// and -0.2 % away after 21 iterations; with the grey levels as well, 0.15 deg and +0.1 % after 17.
 TEST_F(RealLsdSlam, ProjectiveRegistrationBetweenDistantKeyframesOfOneRealMapDoesNotRunAway) {
   const RealMerges& m = realMerges();
   const ProjectiveResult r =
@@ -324,24 +325,23 @@ TEST_F(RealLsdSlam, ProjectiveRegistrationBetweenDistantKeyframesOfOneRealMapDoe
   EXPECT_LT(std::abs(r.estimate.scale() - 1.0), 0.01);
 }
 
-// B's overlap keyframes onto A's do not register: from the keyframe estimate (2.2 deg from the
-// overlap truth) or from the overlap truth itself, the depth residuals at the start are several
-// times their claimed noise (the two LSD maps differ by more than a similarity there, the maps'
-// scale drifting 0.83-3.5 m per unit along each path). Weighed by LSD-SLAM's per-pixel variance
-// alone, the estimate slid 122-125 deg away in 60 iterations (2026-12-05). With the two maps' depth
-// disagreement measured from the residuals and weighed in (rho 0.13 here; 0 within map A, tests
-// above), it is 5.0 and 8.2 deg from the overlap truth at the limit of 60 iterations, but it still
-// slides, only slower: left running from the keyframe estimate, 12 deg at 120 iterations and 27 deg
-// at 240, while more points find a pixel. So it is ICP_NOT_CONVERGED. Until that is solved the stage
-// stays out of the merge; what this checks is that it never calls such a result OK, and that the
-// disagreement is measured and slows the slide.
-TEST_F(RealLsdSlam, ProjectiveRegistrationIsNeverOkFarFromTheTruth) {
+// B's overlap keyframes onto A's. The depth residuals at the start are several times their claimed
+// noise (the two LSD maps differ by more than a similarity there, the maps' scale drifting 0.83-3.5
+// m per unit along each path). Weighed by LSD-SLAM's per-pixel variance alone, the estimate slid
+// 122-125 deg away in 60 iterations (2026-12-05); with the two maps' depth disagreement measured
+// and weighed (rho 0.13-0.14 here; 0 within map A, tests above) it still slid, slower (5 deg at 60
+// iterations, 27 at 240). With the grey levels compared as well (ProjectiveOptions::photometric)
+// it converges, from our keyframe estimate (2.2 deg from the overlap truth) and from the overlap
+// truth alike, to one answer 1.36-1.37 deg and -0.8 % from the overlap truth, itself good to about
+// 3 deg and 25 % (SOURCE.txt).
+TEST_F(RealLsdSlam, ProjectiveRegistrationOfTheTwoRealMapsConvergesNearTheOverlapTruth) {
   const RealMerges& m = realMerges();
   ASSERT_EQ(m.b_into_a.report.status, Status::kOk) << m.b_into_a.report.message;
   const AgentMap a_overlap = withKeyframes(m.a, {124, 142, 161, 179, 197, 223});
   const AgentMap b_overlap = withKeyframes(m.b, {125, 148, 177});
   const std::pair<Sim3, const char*> starts[] = {{m.b_into_a.diagnostics.initial, "the keyframe estimate"},
                                                  {m.truth, "the overlap truth"}};
+  std::vector<Sim3> ends;
   for (const auto& [start, what] : starts) {
     const ProjectiveResult r = registerProjective(b_overlap, a_overlap, start);
     const double rot = deg(rotationDistance(r.estimate.rotation(), m.truth.rotation()));
@@ -350,17 +350,42 @@ TEST_F(RealLsdSlam, ProjectiveRegistrationIsNeverOkFarFromTheTruth) {
                 "overlap truth, depth disagreement %.3f\n",
                 what, statusName(r.status), r.iterations, rot, 100.0 * scale, r.depth_disagreement);
     // The registration ran on these keyframes (their depth and variance were accepted).
-    EXPECT_NE(r.status, Status::kInvalidInput) << what << ": " << r.message;
-    EXPECT_GT(r.iterations, 0) << what;
+    ASSERT_EQ(r.status, Status::kOk) << what << ": " << r.message;
     // The two maps' depth disagrees far beyond its per-pixel variance, and that is measured.
     EXPECT_GT(r.depth_disagreement, 0.05) << what;
-    // Within the 60 iterations it has slid less than 10 deg (122-125 deg without the disagreement).
-    EXPECT_LT(rot, 10.0) << what;
-    if (r.status != Status::kOk) continue;
-    // The overlap truth's own accuracy (SOURCE.txt): about 3 deg and 25 % in scale.
-    EXPECT_LT(rot, 4.0) << what;
-    EXPECT_LT(std::abs(scale), 0.25) << what;
+    EXPECT_GT(r.photometric_rows, r.matches / 2) << r.message;
+    EXPECT_LT(rot, 2.0) << what;
+    EXPECT_LT(std::abs(scale), 0.03) << what;
+    ends.push_back(r.estimate);
   }
+  // Both starts end at one answer.
+  EXPECT_LT(deg(rotationDistance(ends[0].rotation(), ends[1].rotation())), 0.1);
+  EXPECT_LT(std::abs(ends[0].scale() / ends[1].scale() - 1.0), 0.002);
+}
+
+// Each of the 13 overlapping keyframe pairs of truth.yaml alone (B's keyframe onto A's), from our
+// keyframe estimate: with the depth and edges alone none converged (26-165 deg away after 60
+// iterations); with the grey levels 9 converge (2026-12-05), 0.5-6.4 deg from the pair's own truth
+// (the two maps' true camera rotations), and 4 are still moving at 60 iterations, 1.4-4.6 deg away.
+// A single pair sees much less than the overlap, and where the maps' scale drifts the pair's
+// similarity is not the overlap's.
+TEST_F(RealLsdSlam, ProjectiveRegistrationOfSingleRealKeyframePairs) {
+  const RealMerges& m = realMerges();
+  const Sim3 start = m.b_into_a.diagnostics.initial;
+  int converged = 0;
+  for (const auto& [ia, ib] : m.overlap_pairs) {
+    // The pair's true rotation from A's map to B's, through the two maps' true camera rotations.
+    const Eigen::Matrix3d r_aw = keyframe(m.a, ia).pose.rotation() * m.gt_a.at(ia).rotation().transpose();
+    const Eigen::Matrix3d r_bw = keyframe(m.b, ib).pose.rotation() * m.gt_b.at(ib).rotation().transpose();
+    const ProjectiveResult r = registerProjective(withKeyframes(m.b, {ib}), withKeyframes(m.a, {ia}), start);
+    const double rot = deg(rotationDistance(r.estimate.rotation(), r_aw * r_bw.transpose()));
+    std::printf("A %ld / B %ld: %s after %d iterations, %.2f deg from the pair's truth\n", ia, ib, statusName(r.status),
+                r.iterations, rot);
+    if (r.status != Status::kOk) continue;
+    ++converged;
+    EXPECT_LT(rot, 7.0) << "A " << ia << " / B " << ib;
+  }
+  EXPECT_GE(converged, 8);
 }
 
 // --- a simulator world with LSD-like semi-dense depth and drift, exact truth
