@@ -523,8 +523,8 @@ void writeProjective(std::FILE* md, const std::vector<CaseResult>& results) {
   }
   if (n == 0) return;
   std::fprintf(md, "**Projective registration of the keyframes' depth** (registration/projective_registration.h: each "
-                   "map's LSD keyframe pixels projected into the other map's keyframes, residuals in depth and across "
-                   "the image edge, both directions, the better-fitting one kept; not part of the merge, README), on the "
+                   "map's LSD keyframe pixels projected into the other map's keyframes, residuals in depth, across "
+                   "the image edge and in grey level, both directions, the better-fitting one kept; not part of the merge, README), on the "
                    "%d overlapping cases whose keyframes carry LSD depth with its variance: from the exact truth within "
                    "the floors on **%d / %d** (our refinement from the truth on the same cases: %d / %d; %d not converged "
                    "within the stage's iteration limit, not counted), median "
