@@ -260,15 +260,17 @@ struct Direction {
 
 // The two maps' relative depth disagreement beyond their per-pixel noise, from the matches' own
 // depth residuals: the smallest rho >= 0 for which the median of r_d^2 / (v + rho^2 z0^2), v the
-// depth residual's variance from the two maps' per-pixel noise, is the median of a chi-square with 1 DoF, i.e. what a depth residual that follows its noise model
-// would have. Zero when the depth residuals are no larger than the two maps' per-pixel variance says
-// (within one LSD-SLAM map; the simulator's worlds without drift). Two independent monocular maps
-// also differ by their scale drift and distortion, which grow with depth: on the real LSD-SLAM maps
-// of 7-Scenes rho was 0.13-0.25, and without it the depth residuals, weighed as if exact to their
-// variance, made the estimate slide 21-165 deg away (README, Troubleshooting). The matches' chi2 and
-// information are updated to rho (the pixel chosen per match stays the one chosen at the previous
-// rho). Every match is the likeliest pixel of several, which lowers its residual: rho is then, if
-// anything, too small, never raised by the selection. @return rho^2
+// depth residual's variance from the two maps' per-pixel noise, is the median of a chi-square with
+// 1 DoF, i.e. what a depth residual that follows its noise model would have. Zero when the depth
+// residuals are no larger than the two maps' per-pixel variance says (within one LSD-SLAM map; the
+// bench's simulated worlds, in the direction kept). Two independent monocular maps also differ by
+// their scale drift and distortion, which grow with depth: on the real LSD-SLAM maps of 7-Scenes
+// rho was 0.13-0.25, and without it the depth residuals, weighed as if exact to their variance,
+// made the estimate slide 21-165 deg away (README, Troubleshooting; with it the slide was slower,
+// and the grey levels stopped it). The matches' chi2 and information are updated to rho (the pixel
+// chosen per match stays the one chosen at the previous rho). Every match is the likeliest pixel of
+// several, which lowers its residual: rho is then, if anything, too small, never raised by the
+// selection. @return rho^2
 double depthDisagreement(std::vector<Match>* matches, double previous_rho2) {
   std::vector<double> q(matches->size());
   const auto median_at = [&](double rho2) {
