@@ -180,8 +180,8 @@ void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<Fixed
   const Eigen::Vector3d error = s.scale() * (s.rotation() * point.ray_error);
   for (const FixedKeyframe& f : frames) {
     const Eigen::Vector3d c = f.map_to_camera.apply(y);
-    if (!(c.z() > 0.0)) continue;
-    const double u = k.fx * c.x() / c.z() + k.cx, v = k.fy * c.y() / c.z() + k.cy;
+    double u = 0.0, v = 0.0;
+    if (!k.project(c, &u, &v)) continue;
     if (!(u >= rad + 1.0 && v >= rad + 1.0 && u < f.depth.cols - rad - 2.0 && v < f.depth.rows - rad - 2.0)) continue;
     const int cu = static_cast<int>(std::lround(u)), cv0 = static_cast<int>(std::lround(v));
     const Eigen::Matrix<double, 2, 3> p = projectionJacobian(k, c);
@@ -365,8 +365,8 @@ std::vector<PhotometricRow> photometricRowsAt(const Sim3& s, const std::vector<M
       for (int fi = 0; fi < nf; ++fi) {
         const FixedKeyframe& f = frames[fi];
         const Eigen::Vector3d c = f.map_to_camera.apply(y);
-        if (!(c.z() > 0.0)) continue;
-        const double u = k.fx * c.x() / c.z() + k.cx, v = k.fy * c.y() / c.z() + k.cy;
+        double u = 0.0, v = 0.0;
+        if (!k.project(c, &u, &v)) continue;
         if (!(u >= 1.0 && v >= 1.0 && u < f.grey.cols - 2.0 && v < f.grey.rows - 2.0)) continue;
         const int cu = static_cast<int>(std::lround(u)), cv0 = static_cast<int>(std::lround(v));
         const float z0 = f.depth.at<float>(cv0, cu), sd0 = f.stddev.at<float>(cv0, cu);
