@@ -79,6 +79,11 @@ struct CaseResult {
   /// not part of the merge) from the exact truth and from our keyframe estimate; tried only when
   /// both maps' keyframes carry depth with a per-pixel standard deviation (LSD-SLAM keyframes).
   PeerRun projective_from_truth, projective_from_keyframes;
+  /// projective_from_keyframes' estimate scored under the stage's Gauss-Newton covariance alone
+  /// (ProjectiveResult::gauss_newton_covariance), and whether its reported covariance holds the
+  /// keyframe jackknife (ProjectiveResult::jackknifed).
+  PeerRun projective_from_keyframes_gauss_newton;
+  bool projective_jackknifed = false;
 };
 
 /// Blocks of the bench's jackknife row (CaseResult::icp_from_truth_jackknife).

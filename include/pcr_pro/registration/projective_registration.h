@@ -95,6 +95,20 @@ struct ProjectiveOptions {
   /// the real maps 1.25 deg from the overlap truth instead of 1.33, on the bench's simulated worlds a
   /// median rotation error from the truth of 0.36 deg instead of 0.30 (README, Troubleshooting).
   double photometric_blur_px = 1.0;
+  /// The covariance adds the estimate's spread between re-runs that each leave out one keyframe (a
+  /// delete-one-keyframe jackknife in the kept direction, one for each map's keyframes, summed): what
+  /// a monocular map gets wrong keyframe by keyframe (its depth's scale, its pose's drift) is not
+  /// per-pixel noise, and the Gauss-Newton covariance alone was 25-50 times too confident on the
+  /// bench's worlds (README, Troubleshooting). Each map needs two keyframes with matches or more;
+  /// otherwise the covariance is the Gauss-Newton one and ProjectiveResult::jackknifed is false.
+  /// Costs one registration of one direction per keyframe with matches.
+  bool jackknife = true;
+  /// The covariance also adds the difference δ between the two directions' estimates as a spread
+  /// δδᵀ (without its cross terms, as the jackknife's). The moving points' own depth noise biases
+  /// each direction differently (file comment), and that bias is shared by every keyframe, so the
+  /// jackknife cannot see it; which direction is nearer the truth is not known, so the kept one may
+  /// be off by as much as their difference. Applied when the other direction gave an estimate.
+  bool direction_spread = true;
 };
 
 /// Every parameter of ProjectiveOptions: key, type, default (the member initialiser), range, unit, doc.
@@ -111,7 +125,23 @@ struct ProjectiveResult {
   Status status = Status::kInvalidInput;
   std::string message;
   Sim3 estimate;                           ///< S_target_source
-  Matrix7d covariance = Matrix7d::Zero();  ///< the Gauss-Newton normal matrix's inverse (per-residual noise only)
+  /// Of δ about the estimate (similarity_fit.h): the Gauss-Newton covariance plus, when jackknifed,
+  /// the keyframe jackknife's spread, plus the two directions' difference as a spread
+  /// (direction_spread), each without its cross terms between the translation at the overlap's
+  /// centre, the rotation and the log scale (blockDiagonalAt(), as the ICP's jackknife).
+  Matrix7d covariance = Matrix7d::Zero();
+  /// The Gauss-Newton normal matrix's inverse alone (per-residual noise only), for comparison.
+  Matrix7d gauss_newton_covariance = Matrix7d::Zero();
+  /// The covariance holds the keyframe jackknife (ProjectiveOptions::jackknife; false when a map has
+  /// fewer than two keyframes with matches).
+  bool jackknifed = false;
+  /// Keyframes of the moving and of the fixed map left out whose registration gave an estimate, and
+  /// of those, the ones still moving at max_iterations (kept, as the ICP's jackknife does).
+  int jackknife_moving_keyframes = 0, jackknife_fixed_keyframes = 0, jackknife_not_converged = 0;
+  /// The covariance holds the two directions' difference (ProjectiveOptions::direction_spread), whose
+  /// rotation [deg] and log scale [-] are these.
+  bool direction_spread = false;
+  double direction_difference_deg = 0.0, direction_difference_scale = 0.0;
   /// Median squared Mahalanobis length of the whitened residual pairs at the estimate, under the
   /// two maps' per-pixel noise alone (without depth_disagreement) [-] (1.39 for a single residual
   /// pair that follows its noise model exactly; less, since each match is the likeliest of several

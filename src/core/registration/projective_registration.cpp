@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "pcr_pro/geometry/median.h"
+#include "pcr_pro/registration/covariance.h"
 #include "pcr_pro/registration/icp.h"
 
 namespace pcr_pro {
@@ -78,6 +79,7 @@ struct Match {
   // a unit of its depth error.
   double fixed_var = 0.0, fixed_depth2 = 0.0, edge_var = 0.0, moving_var = 0.0;
   Eigen::Vector2d seen = Eigen::Vector2d::Zero();
+  int moving_keyframe = 0, fixed_keyframe = 0;  // the keyframes of the moving point and of the pixel
 };
 
 // The residual pair's covariance when the fixed pixel's depth also disagrees with the moving map by
@@ -178,7 +180,8 @@ void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<Fixed
   const double edge2 = o.edge_stddev_px * o.edge_stddev_px;
   const Eigen::Vector3d y = s.apply(point.p);
   const Eigen::Vector3d error = s.scale() * (s.rotation() * point.ray_error);
-  for (const FixedKeyframe& f : frames) {
+  for (std::size_t fi = 0; fi < frames.size(); ++fi) {
+    const FixedKeyframe& f = frames[fi];
     const Eigen::Vector3d c = f.map_to_camera.apply(y);
     double u = 0.0, v = 0.0;
     if (!k.project(c, &u, &v)) continue;
@@ -217,6 +220,8 @@ void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<Fixed
     if (!std::isfinite(m.chi2)) continue;
     const Eigen::Matrix<double, 3, 7> jc = f.map_to_camera.scale() * f.map_to_camera.rotation() * similarityJacobian(y);
     m.j = residualJacobian(jc, p, best_n);
+    m.moving_keyframe = point.keyframe;
+    m.fixed_keyframe = static_cast<int>(fi);
     out->push_back(m);
   }
 }
@@ -254,6 +259,8 @@ struct Direction {
   int photometric_rows = 0;
   double photometric_stddev = 0.0;  // [grey levels] (photometricEquations())
   int matches = 0, iterations = 0, extrapolations = 0;
+  // The geometric matches at the final estimate per moving and per fixed keyframe (by index).
+  std::vector<int> moving_matches, fixed_matches;
   bool ok = false;
   bool converged = false;  // the differential check passed before max_iterations
 };
@@ -492,6 +499,14 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
   Vector7d g;
   const std::vector<Match> matches = equationsAt(d.estimate, points, frames, k, o, &d, &g);
   if (static_cast<int>(matches.size()) < kMinMatches) return d;
+  int moving_keyframes = 0;
+  for (const MovingPoint& m : points) moving_keyframes = std::max(moving_keyframes, m.keyframe + 1);
+  d.moving_matches.assign(static_cast<std::size_t>(moving_keyframes), 0);
+  d.fixed_matches.assign(frames.size(), 0);
+  for (const Match& m : matches) {
+    ++d.moving_matches[static_cast<std::size_t>(m.moving_keyframe)];
+    ++d.fixed_matches[static_cast<std::size_t>(m.fixed_keyframe)];
+  }
   d.per_pixel_median_chi2 = d.median_chi2;
   if (d.rho2 > 0.0) {
     std::vector<double> chi2;
@@ -501,6 +516,69 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
   }
   d.ok = d.estimate.matrix().allFinite() && d.information.allFinite();
   return d;
+}
+
+// The delete-one-keyframe jackknife of a direction (ProjectiveOptions::jackknife).
+struct Jackknife {
+  bool ok = false;
+  Matrix7d covariance = Matrix7d::Zero();  // of δ about the direction's own estimate (moving -> fixed)
+  int moving = 0, fixed = 0;               // keyframes left out whose registration gave an estimate
+  int not_converged = 0, failed = 0;
+};
+
+// The direction solved again from its estimate without each keyframe that holds kMinMatches of its
+// matches or more, one at a time: first each moving keyframe's points, then each fixed keyframe. A
+// keyframe is what a monocular map gets wrong as a whole (its depth's scale, its pose's drift), so the
+// estimates' spread between leave-outs holds those errors, which the per-pixel noise does not. The
+// two maps' keyframes are crossed (every match pairs one of each), so each side is a jackknife of its
+// own, (n - 1)/n Σ (δ_k - δ̄)(δ_k - δ̄)ᵀ over its n leave-outs, and the two are summed: each also
+// holds the per-pixel noise, which is thus counted twice (conservative). A side needs two such
+// keyframes or more; with one, what its keyframe gets wrong is not measured, and ok is false. A
+// leave-out still moving at max_iterations counts, as in the ICP's jackknife (jackknife.h).
+Jackknife jackknifeKeyframes(const std::vector<MovingPoint>& points, const std::vector<FixedKeyframe>& frames,
+                             const PinholeCamera& k, const Direction& full, const ProjectiveOptions& o) {
+  Jackknife out;
+  const auto spread = [](const std::vector<Vector7d>& deltas) {
+    const double n = static_cast<double>(deltas.size());
+    Vector7d mean = Vector7d::Zero();
+    for (const Vector7d& d : deltas) mean += d / n;
+    Matrix7d c = Matrix7d::Zero();
+    for (const Vector7d& d : deltas) c += (d - mean) * (d - mean).transpose();
+    return Matrix7d(c * (n - 1.0) / n);
+  };
+  const auto add = [&](const Direction& r, std::vector<Vector7d>* deltas) {
+    const Vector7d d = similarityDifference(r.estimate, full.estimate);
+    if (!r.ok || !d.allFinite()) {
+      ++out.failed;
+      return;
+    }
+    if (!r.converged) ++out.not_converged;
+    deltas->push_back(d);
+  };
+  std::vector<Vector7d> moving, fixed;
+  for (std::size_t kf = 0; kf < full.moving_matches.size(); ++kf) {
+    if (full.moving_matches[kf] < kMinMatches) continue;
+    std::vector<MovingPoint> kept;
+    kept.reserve(points.size());
+    for (const MovingPoint& m : points) {
+      if (m.keyframe != static_cast<int>(kf)) kept.push_back(m);
+    }
+    add(solve(kept, frames, k, full.estimate, o), &moving);
+  }
+  for (std::size_t kf = 0; kf < full.fixed_matches.size(); ++kf) {
+    if (full.fixed_matches[kf] < kMinMatches) continue;
+    std::vector<FixedKeyframe> kept;
+    for (std::size_t i = 0; i < frames.size(); ++i) {
+      if (i != kf) kept.push_back(frames[i]);
+    }
+    add(solve(points, kept, k, full.estimate, o), &fixed);
+  }
+  out.moving = static_cast<int>(moving.size());
+  out.fixed = static_cast<int>(fixed.size());
+  if (out.moving < 2 || out.fixed < 2) return out;
+  out.covariance = spread(moving) + spread(fixed);
+  out.ok = out.covariance.allFinite();
+  return out;
 }
 
 }  // namespace
@@ -525,6 +603,10 @@ const ParamSchema<ProjectiveOptions>& paramSchema<ProjectiveOptions>() {
        "also compare each moving point's grey level with the other keyframes' images where it projects"},
       {"photometric_blur_px", &O::photometric_blur_px, R::atLeast(0), "px",
        "standard deviation of the Gaussian that smooths the images before their grey levels are compared"},
+      {"jackknife", &O::jackknife, R::any(), "",
+       "the covariance adds the estimate's spread when each keyframe is left out in turn"},
+      {"direction_spread", &O::direction_spread, R::any(), "",
+       "the covariance adds the difference between the two directions' estimates as a spread"},
   }};
   return schema;
 }
@@ -569,10 +651,14 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
       return out;
     }
   }
-  const Direction forward =
-      solve(movingPoints(source, options), fixedKeyframes(target, options), target.camera, initial, options);
-  Direction backward =
-      solve(movingPoints(target, options), fixedKeyframes(source, options), source.camera, initial.inverse(), options);
+  const std::vector<MovingPoint> source_points = movingPoints(source, options),
+                                 target_points = movingPoints(target, options);
+  const std::vector<FixedKeyframe> source_frames = fixedKeyframes(source, options),
+                                   target_frames = fixedKeyframes(target, options);
+  const Direction forward = solve(source_points, target_frames, target.camera, initial, options);
+  Direction backward = solve(target_points, source_frames, source.camera, initial.inverse(), options);
+  // The backward direction's own estimate B (source -> target is B⁻¹), kept for its jackknife.
+  const Sim3 backward_own = backward.estimate;
   if (backward.ok) {
     // Into the requested direction, S = B⁻¹: its covariance is Ad(B⁻¹) C_B Ad(B⁻¹)ᵀ
     // (similarityAdjoint()), so its information is Ad(B)ᵀ I_B Ad(B).
@@ -598,6 +684,48 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
     out.status = Status::kNotEnoughMatches;
     out.message = "projective registration: the matches do not hold all 7 DoF";
     return out;
+  }
+  out.gauss_newton_covariance = out.covariance;
+  // The centre of the overlap in the target map: the moving points' centroid, where the estimate
+  // puts it. The spreads below are taken without their cross terms between the translation there,
+  // the rotation and the log scale (blockDiagonalAt(), as the ICP's jackknife): a handful of
+  // estimates resolve those correlations poorly.
+  const std::vector<MovingPoint>& moving = use_backward ? target_points : source_points;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  for (const MovingPoint& m : moving) centre += m.p / static_cast<double>(moving.size());
+  if (!use_backward) centre = d.estimate.apply(centre);
+  if (options.jackknife) {
+    // The jackknife runs in the kept direction's own frame; the backward one's spread moves into the
+    // requested direction by the adjoint of B⁻¹, as its information did above.
+    Direction own = d;
+    if (use_backward) own.estimate = backward_own;
+    const Jackknife jk = use_backward
+                             ? jackknifeKeyframes(target_points, source_frames, source.camera, own, options)
+                             : jackknifeKeyframes(source_points, target_frames, target.camera, own, options);
+    out.jackknife_moving_keyframes = jk.moving;
+    out.jackknife_fixed_keyframes = jk.fixed;
+    out.jackknife_not_converged = jk.not_converged;
+    if (jk.ok) {
+      Matrix7d spread = jk.covariance;
+      if (use_backward) {
+        const Matrix7d ad = similarityAdjoint(d.estimate);
+        spread = ad * spread * ad.transpose();
+      }
+      const Matrix7d c = out.covariance + blockDiagonalAt(spread, centre);
+      out.jackknifed = c.allFinite();
+      if (out.jackknifed) out.covariance = 0.5 * (c + c.transpose());
+    }
+  }
+  if (options.direction_spread && other.ok) {
+    // The two directions' difference δ, taken as a spread δδᵀ of the kept estimate along it.
+    const Vector7d difference = similarityDifference(other.estimate, d.estimate);
+    const Matrix7d c = out.covariance + blockDiagonalAt(difference * difference.transpose(), centre);
+    if (difference.allFinite() && c.allFinite()) {
+      out.covariance = 0.5 * (c + c.transpose());
+      out.direction_difference_deg = difference.segment<3>(3).norm() * 180.0 / M_PI;
+      out.direction_difference_scale = difference(6);
+      out.direction_spread = true;
+    }
   }
   out.status = d.converged ? Status::kOk : Status::kIcpNotConverged;
   out.estimate = d.estimate;
@@ -625,6 +753,23 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
     char sd[32];
     std::snprintf(sd, sizeof sd, "%.3g", out.photometric_stddev);
     out.message += ", " + std::to_string(out.photometric_rows) + " grey-level comparisons (noise " + sd + ")";
+  }
+  if (options.jackknife) {
+    out.message += out.jackknifed
+                       ? ", covariance from the jackknife over " + std::to_string(out.jackknife_moving_keyframes) +
+                             " moving and " + std::to_string(out.jackknife_fixed_keyframes) + " fixed keyframes"
+                       : ", no jackknife (" + std::to_string(out.jackknife_moving_keyframes) + " moving and " +
+                             std::to_string(out.jackknife_fixed_keyframes) +
+                             " fixed keyframes with matches left out; 2 of each needed): per-pixel noise only";
+    if (out.jackknife_not_converged > 0) {
+      out.message += " (" + std::to_string(out.jackknife_not_converged) + " leave-outs not converged)";
+    }
+  }
+  if (out.direction_spread) {
+    char dir[96];
+    std::snprintf(dir, sizeof dir, ", the two directions %.3g deg and %.3g %% in scale apart", out.direction_difference_deg,
+                  100.0 * out.direction_difference_scale);
+    out.message += dir;
   }
   if (!d.converged) {
     out.message = "projective registration: did not converge within " + std::to_string(options.max_iterations) +
