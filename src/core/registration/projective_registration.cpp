@@ -760,7 +760,8 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
                              " moving and " + std::to_string(out.jackknife_fixed_keyframes) + " fixed keyframes"
                        : ", no jackknife (" + std::to_string(out.jackknife_moving_keyframes) + " moving and " +
                              std::to_string(out.jackknife_fixed_keyframes) +
-                             " fixed keyframes with matches left out; 2 of each needed): per-pixel noise only";
+                             " fixed keyframes with matches left out; 2 of each needed): the covariance holds no "
+                             "keyframe's error";
     if (out.jackknife_not_converged > 0) {
       out.message += " (" + std::to_string(out.jackknife_not_converged) + " leave-outs not converged)";
     }
