@@ -37,6 +37,13 @@ struct JackknifeSpread {
 };
 
 /**
+ * @brief The delete-one jackknife covariance (K - 1)/K Σ (δ_k - δ̄)(δ_k - δ̄)ᵀ of K leave-out
+ * estimates' differences δ_k from the full estimate.
+ * @param[in] deltas the δ_k (similarityDifference(estimate without part k, estimate)), at least one
+ */
+Matrix7d jackknifeSpread(const std::vector<Eigen::Matrix<double, 7, 1>>& deltas);
+
+/**
  * @brief Delete-one-block jackknife of a registration.
  *
  * The source points, mapped by `estimate`, are cut into `blocks` spatial blocks (spatialBlocks():

@@ -8,6 +8,15 @@
 
 namespace pcr_pro {
 
+Matrix7d jackknifeSpread(const std::vector<Eigen::Matrix<double, 7, 1>>& deltas) {
+  const double k = static_cast<double>(deltas.size());
+  Eigen::Matrix<double, 7, 1> mean = Eigen::Matrix<double, 7, 1>::Zero();
+  for (const auto& d : deltas) mean += d / k;
+  Matrix7d c = Matrix7d::Zero();
+  for (const auto& d : deltas) c += (d - mean) * (d - mean).transpose();
+  return c * (k - 1.0) / k;
+}
+
 JackknifeSpread jackknifeCovariance(const Cloud& source, const Cloud& target, const Sim3& estimate,
                                    const IcpOptions& options, int blocks, const std::vector<PointMatch3>* anchors) {
   if (blocks < 3) throw InputError("jackknifeCovariance: blocks must be >= 3, got " + std::to_string(blocks));
@@ -64,14 +73,8 @@ JackknifeSpread jackknifeCovariance(const Cloud& source, const Cloud& target, co
     out.message = msg.str();
     return out;
   }
-  Eigen::Matrix<double, 7, 1> mean = Eigen::Matrix<double, 7, 1>::Zero();
-  for (const auto& d : deltas) mean += d;
-  mean /= static_cast<double>(out.blocks);
-  Matrix7d c = Matrix7d::Zero();
-  for (const auto& d : deltas) c += (d - mean) * (d - mean).transpose();
-  c *= static_cast<double>(out.blocks - 1) / static_cast<double>(out.blocks);
   const Eigen::Vector3d centre = mapped.rowwise().mean();
-  out.covariance = blockDiagonalAt(c, centre);
+  out.covariance = blockDiagonalAt(jackknifeSpread(deltas), centre);
   if (!options.estimate_scale) {
     out.covariance.row(6).setZero();
     out.covariance.col(6).setZero();

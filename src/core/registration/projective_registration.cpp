@@ -13,6 +13,7 @@
 #include "pcr_pro/geometry/median.h"
 #include "pcr_pro/registration/covariance.h"
 #include "pcr_pro/registration/icp.h"
+#include "pcr_pro/registration/jackknife.h"
 
 namespace pcr_pro {
 namespace {
@@ -538,14 +539,6 @@ struct Jackknife {
 Jackknife jackknifeKeyframes(const std::vector<MovingPoint>& points, const std::vector<FixedKeyframe>& frames,
                              const PinholeCamera& k, const Direction& full, const ProjectiveOptions& o) {
   Jackknife out;
-  const auto spread = [](const std::vector<Vector7d>& deltas) {
-    const double n = static_cast<double>(deltas.size());
-    Vector7d mean = Vector7d::Zero();
-    for (const Vector7d& d : deltas) mean += d / n;
-    Matrix7d c = Matrix7d::Zero();
-    for (const Vector7d& d : deltas) c += (d - mean) * (d - mean).transpose();
-    return Matrix7d(c * (n - 1.0) / n);
-  };
   const auto add = [&](const Direction& r, std::vector<Vector7d>* deltas) {
     const Vector7d d = similarityDifference(r.estimate, full.estimate);
     if (!r.ok || !d.allFinite()) {
@@ -576,7 +569,7 @@ Jackknife jackknifeKeyframes(const std::vector<MovingPoint>& points, const std::
   out.moving = static_cast<int>(moving.size());
   out.fixed = static_cast<int>(fixed.size());
   if (out.moving < 2 || out.fixed < 2) return out;
-  out.covariance = spread(moving) + spread(fixed);
+  out.covariance = jackknifeSpread(moving) + jackknifeSpread(fixed);
   out.ok = out.covariance.allFinite();
   return out;
 }
