@@ -105,12 +105,15 @@ bool usable(float z, float sd, double max_relative) {
   return std::isfinite(z) && std::isfinite(sd) && z > 0.0f && sd > 0.0f && sd <= max_relative * z;
 }
 
-std::vector<MovingPoint> movingPoints(const AgentMap& map, const ProjectiveOptions& o) {
+// The map's points; their grey levels come from the same map's keyframes as fixedKeyframes() made
+// them (smoothed once per keyframe; 0 without ProjectiveOptions::photometric).
+std::vector<MovingPoint> movingPoints(const AgentMap& map, const std::vector<FixedKeyframe>& frames,
+                                      const ProjectiveOptions& o) {
   std::vector<MovingPoint> out;
   const PinholeCamera& k = map.camera;
   for (std::size_t index = 0; index < map.keyframes.size(); ++index) {
     const MapKeyframe& kf = map.keyframes[index];
-    const cv::Mat grey = smoothed(kf.image, o.photometric_blur_px);
+    const cv::Mat& grey = frames[index].grey;
     long n = 0;
     for (int row = 0; row < kf.depth.rows; ++row) {
       const float* z = kf.depth.ptr<float>(row);
@@ -120,7 +123,8 @@ std::vector<MovingPoint> movingPoints(const AgentMap& map, const ProjectiveOptio
         const Eigen::Vector3d ray((col - k.cx) / k.fx, (row - k.cy) / k.fy, 1.0);
         const Eigen::Vector3d camera_point = static_cast<double>(z[col]) * ray;
         out.push_back({kf.pose.apply(camera_point), kf.pose.scale() * (kf.pose.rotation() * ray),
-                       static_cast<double>(sd[col]) * sd[col], grey.at<float>(row, col), static_cast<int>(index)});
+                       static_cast<double>(sd[col]) * sd[col], grey.empty() ? 0.0f : grey.at<float>(row, col),
+                       static_cast<int>(index)});
       }
     }
   }
@@ -644,10 +648,10 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
       return out;
     }
   }
-  const std::vector<MovingPoint> source_points = movingPoints(source, options),
-                                 target_points = movingPoints(target, options);
   const std::vector<FixedKeyframe> source_frames = fixedKeyframes(source, options),
                                    target_frames = fixedKeyframes(target, options);
+  const std::vector<MovingPoint> source_points = movingPoints(source, source_frames, options),
+                                 target_points = movingPoints(target, target_frames, options);
   const Direction forward = solve(source_points, target_frames, target.camera, initial, options);
   Direction backward = solve(target_points, source_frames, source.camera, initial.inverse(), options);
   // The backward direction's own estimate B (source -> target is B⁻¹), kept for its jackknife.
