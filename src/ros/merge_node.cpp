@@ -562,6 +562,7 @@ Response MergeNode::mergeMaps(const MergeJob& job, const Snapshot& s, const Agen
   timing->pairs_cached = result.diagnostics.pairs_cached;
   timing->pairs_computed = result.diagnostics.candidate_pairs - result.diagnostics.pairs_cached;
   timing->vote_rows_computed = result.diagnostics.vote_rows_computed;
+  timing->earlier_pairs = result.diagnostics.earlier_pairs;
   // The pipeline cached the features of the snapshot's keyframes; those that left the map
   // while it ran were invalidated before they were stored: forget them now, or the cache
   // grows with every merge of a streaming agent (the soak test's resident memory).
@@ -732,6 +733,7 @@ void MergeNode::mergeDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& s)
     s.add("last_pairs_computed", t->pairs_computed);
     s.add("last_pairs_cached", t->pairs_cached);
     s.add("last_vote_rows_computed", t->vote_rows_computed);
+    s.add("last_earlier_pairs", t->earlier_pairs);
   }
   std::lock_guard<std::mutex> history_lock(history_mutex_);
   s.add("history_edges", history_.size());

@@ -346,6 +346,63 @@ TEST_F(SimWorld, AGrownSourceMapComputesTheVotesOfItsNewKeyframeOnly) {
   EXPECT_EQ(target_grown.vote_rows_computed, static_cast<int>(grown.keyframes.size()));
 }
 
+// A keyframe added to the target map that wins the preselection's votes and then fails (here a
+// copy of the best pair's source image cut into 8 x 8 tiles put back in another order: most of
+// its SIFT descriptors are the source's own, so it outvotes every true view, but no one relative
+// pose holds its matches) must not stop a map that merged from merging: the pairs that verified
+// in the earlier merge come back from the pair cache, matched already.
+TEST_F(SimWorld, AKeyframeThatWinsTheVotesAndFailsDoesNotStopAMapThatMergedFromMerging) {
+  MergeOptions options;
+  options.merge.max_candidate_pairs = 1;  // one preselected pair: the new keyframe takes it
+  options.merge.local_keyframes = 0;
+  MergePipeline pipeline{options};
+  const MergeResult first = pipeline.merge(map(1), map(0), MergeRequest(), "agent_b", "agent_a");
+  ASSERT_EQ(first.report.status, Status::kOk) << first.report.message;
+  EXPECT_EQ(first.diagnostics.earlier_pairs, 0);
+  ASSERT_GT(first.diagnostics.keyframe_pairs, options.merge.max_candidate_pairs) << "the votes preselect";
+  ASSERT_GT(first.diagnostics.verified_pairs, 0);
+
+  const long best_source = *first.report.source_keyframe;
+  const MapKeyframe* source_kf = nullptr;
+  for (const MapKeyframe& k : map(1).keyframes) source_kf = k.id == best_source ? &k : source_kf;
+  ASSERT_NE(source_kf, nullptr);
+  const cv::Mat& img = source_kf->image;
+  const int tiles = 8, tw = img.cols / tiles, th = img.rows / tiles;
+  cv::Mat shuffled = img.clone();
+  for (int k = 0; k < tiles * tiles; ++k) {
+    const int from = (k * 37 + 11) % (tiles * tiles);  // 37 is prime to 64: a permutation
+    img(cv::Rect((from % tiles) * tw, (from / tiles) * th, tw, th))
+        .copyTo(shuffled(cv::Rect((k % tiles) * tw, (k / tiles) * th, tw, th)));
+  }
+  AgentMap grown = map(0);
+  MapKeyframe added = grown.keyframes.front();
+  added.id = 900000;
+  added.image = shuffled;
+  added.depth = cv::Mat();
+  grown.keyframes.push_back(added);
+
+  // The front end alone: the new keyframe takes the one preselected place and fails.
+  KeyframeFrontEnd front(options);
+  const FrontEndResult fresh = front.run(map(1), grown, MergeRequest(), "agent_b", "agent_a");
+  ASSERT_EQ(fresh.status, Status::kOk) << fresh.message;
+  ASSERT_EQ(fresh.pairs.size(), 1u);
+  EXPECT_EQ(fresh.pairs.front().target->id, added.id) << "the new keyframe wins the votes";
+  EXPECT_EQ(fresh.verified, 0) << "and its pair fails";
+  EXPECT_EQ(fresh.earlier_pairs, 0) << "a front end without history has no earlier pairs";
+
+  // The pipeline that merged before: the earlier verified pairs come back, from the cache.
+  const MergeResult second = pipeline.merge(map(1), grown, MergeRequest(), "agent_b", "agent_a");
+  ASSERT_EQ(second.report.status, Status::kOk) << second.report.message;
+  EXPECT_GT(second.diagnostics.earlier_pairs, 0);
+  EXPECT_NE(second.report.message.find("verified in earlier merges"), std::string::npos) << second.report.message;
+  EXPECT_GE(second.diagnostics.pairs_cached, second.diagnostics.earlier_pairs);
+  EXPECT_EQ(*second.report.source_keyframe, best_source);
+  EXPECT_EQ(*second.report.target_keyframe, *first.report.target_keyframe);
+  const test::Errors e = test::errors(*second.report.transform, *first.report.transform);
+  EXPECT_LT(e.rotation_deg, 0.5);
+  EXPECT_LT(e.scale_rel, 0.01);
+}
+
 // A row of votes belongs to the index it was computed against: a new index (other target
 // keyframes) drops the rows, and a row stored against an index no longer kept is ignored.
 TEST(PairCache, VoteRowsBelongToTheIndexTheyWereComputedAgainst) {

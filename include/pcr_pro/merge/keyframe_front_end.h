@@ -163,6 +163,9 @@ struct FrontEndResult {
   int pairs_cached = 0;        ///< pairs whose matches and relative pose came from the PairCache
   bool votes_cached = false;   ///< the preselection's votes came from the PairCache, every row
   int vote_rows_computed = 0;  ///< source keyframes whose votes were computed (not from the PairCache)
+  /// Pairs that verified in an earlier run, added from the PairCache because no preselected pair
+  /// verified (KeyframeFrontEnd::run()) [-].
+  int earlier_pairs = 0;
   double features_ms = 0.0;       ///< SIFT and matching
   double relative_pose_ms = 0.0;  ///< RANSAC and refinement of every candidate
 };
@@ -176,6 +179,10 @@ class KeyframeFrontEnd {
 
   /**
    * @brief Features, preselection, matching and relative pose for the keyframes of two maps.
+   * With more pairs than merge.max_candidate_pairs, the pairs with the most votes are matched in
+   * full, then every pair within merge.local_keyframes of the best verified one. When none of them
+   * verified, the pairs of these keyframes that verified in earlier runs are added from the
+   * PairCache (FrontEndResult::earlier_pairs; no matching or RANSAC).
    * @param[in] source source map (its keyframes must outlive the result)
    * @param[in] target target map
    * @param[in] request keyframe ids to use (unset = every keyframe)

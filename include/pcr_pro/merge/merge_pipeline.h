@@ -36,6 +36,9 @@ struct MergeDiagnostics {
   int features_computed = 0;       ///< keyframes whose SIFT features were computed by this merge
   int features_cached = 0;         ///< keyframes whose features came from the cache
   int pairs_cached = 0;            ///< candidate pairs whose matches and relative pose came from the cache
+  /// candidate pairs that verified in an earlier merge, added because no preselected pair verified
+  /// (FrontEndResult::earlier_pairs)
+  int earlier_pairs = 0;
   int vote_rows_computed = 0;      ///< source keyframes whose votes were computed (KeyframeFrontEnd, PairCache)
   int feature_matches = 0;         ///< good SIFT matches of the anchor pair
   int relative_pose_inliers = 0;   ///< OpenGV inliers of the anchor pair

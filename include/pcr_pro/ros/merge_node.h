@@ -77,6 +77,7 @@ class MergeNode {
     int features_computed = 0, features_cached = 0;  // keyframes whose SIFT was computed / came from the cache
     int pairs_computed = 0, pairs_cached = 0;  // candidate pairs matched and posed / taken from the pair cache
     int vote_rows_computed = 0;  // source keyframes whose votes of the pair preselection were computed
+    int earlier_pairs = 0;  // pairs that verified in earlier merges, added as no preselected pair verified
   };
   struct MergeState {
     bool attempted = false;

@@ -5,6 +5,7 @@
 #include <cstring>
 #include <exception>
 #include <optional>
+#include <set>
 #include <tuple>
 
 namespace pcr_pro {
@@ -330,6 +331,26 @@ FrontEndResult KeyframeFrontEnd::run(const AgentMap& source, const AgentMap& tar
       }
     }
     matchPairs(src, tgt, src_features, tgt_features, extra, votes, source.camera, target.camera, &out);
+  }
+  // No preselected pair verified: a keyframe added since the last merge can take the
+  // preselection's places with its votes (content no other keyframe of its map shows wins the
+  // ratio test, content that overlapping keyframes share does not) and then fail. The pairs of
+  // these keyframes that verified in earlier merges (PairCache) are candidates then too: they cost
+  // no matching, and a map that merged does not stop merging because a keyframe was added.
+  if (preselected && out.verified == 0) {
+    std::set<std::pair<std::size_t, std::size_t>> tried(pairs.begin(), pairs.end());
+    std::vector<std::pair<std::size_t, std::size_t>> earlier;
+    for (std::size_t i = 0; i < src.size(); ++i) {
+      for (std::size_t j = 0; j < tgt.size(); ++j) {
+        if (tried.count({i, j})) continue;
+        const auto cached = pair_cache_.find(tgt_features[j], src_features[i], target.camera, source.camera);
+        if (cached && cached->pose.status == Status::kOk) earlier.emplace_back(i, j);
+      }
+    }
+    if (!earlier.empty()) {
+      matchPairs(src, tgt, src_features, tgt_features, earlier, votes, source.camera, target.camera, &out);
+      out.earlier_pairs = static_cast<int>(earlier.size());
+    }
   }
   return out;
 }

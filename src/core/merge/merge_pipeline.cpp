@@ -97,6 +97,7 @@ void recordFrontEnd(const FrontEndResult& front, RegistrationReport* rep, MergeD
   diag->features_computed = front.features_computed;
   diag->features_cached = front.features_cached;
   diag->pairs_cached = front.pairs_cached;
+  diag->earlier_pairs = front.earlier_pairs;
   diag->vote_rows_computed = front.vote_rows_computed;
 }
 
@@ -313,8 +314,12 @@ std::string mergedMessage(const KeyframeEstimate& kf, const PairEvidence& anchor
                           const GateVerdict& verdict) {
   return "merged 2 maps: " + std::to_string(kf.used_pairs) + " keyframe pair(s) (anchor source " +
          std::to_string(anchor.source_keyframe) + " / target " + std::to_string(anchor.target_keyframe) + ", " +
-         std::to_string(anchor.inliers) + " inliers), keyframe scale " + fmt(diag.kalman_scale, 4) + " +- " +
-         fmt(diag.kalman_scale_stddev, 2) + "; " + verdict.message;
+         std::to_string(anchor.inliers) + " inliers" +
+         (diag.earlier_pairs > 0 ? "; no preselected pair verified, " + std::to_string(diag.earlier_pairs) +
+                                       " pair(s) that verified in earlier merges added"
+                                 : std::string()) +
+         "), keyframe scale " + fmt(diag.kalman_scale, 4) + " +- " + fmt(diag.kalman_scale_stddev, 2) + "; " +
+         verdict.message;
 }
 
 }  // namespace
