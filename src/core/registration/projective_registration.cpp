@@ -528,7 +528,7 @@ struct Jackknife {
   bool ok = false;
   Matrix7d covariance = Matrix7d::Zero();  // of δ about the direction's own estimate (moving -> fixed)
   int moving = 0, fixed = 0;               // keyframes left out whose registration gave an estimate
-  int not_converged = 0, failed = 0;
+  int not_converged = 0;
 };
 
 // The direction solved again from its estimate without each keyframe that holds kMinMatches of its
@@ -545,10 +545,7 @@ Jackknife jackknifeKeyframes(const std::vector<MovingPoint>& points, const std::
   Jackknife out;
   const auto add = [&](const Direction& r, std::vector<Vector7d>* deltas) {
     const Vector7d d = similarityDifference(r.estimate, full.estimate);
-    if (!r.ok || !d.allFinite()) {
-      ++out.failed;
-      return;
-    }
+    if (!r.ok || !d.allFinite()) return;  // no estimate without that keyframe: not counted
     if (!r.converged) ++out.not_converged;
     deltas->push_back(d);
   };
