@@ -563,6 +563,11 @@ Response MergeNode::mergeMaps(const MergeJob& job, const Snapshot& s, const Agen
   timing->pairs_computed = result.diagnostics.candidate_pairs - result.diagnostics.pairs_cached;
   timing->vote_rows_computed = result.diagnostics.vote_rows_computed;
   timing->earlier_pairs = result.diagnostics.earlier_pairs;
+  timing->refinement = result.diagnostics.projective_refinement ? "projective" : "icp";
+  if (!result.diagnostics.projective_note.empty()) {
+    timing->refinement += " (projective: " + result.diagnostics.projective_note + ")";
+  }
+  timing->projective_ms = result.diagnostics.ms_projective;
   // The pipeline cached the features of the snapshot's keyframes; those that left the map
   // while it ran were invalidated before they were stored: forget them now, or the cache
   // grows with every merge of a streaming agent (the soak test's resident memory).
@@ -734,6 +739,8 @@ void MergeNode::mergeDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& s)
     s.add("last_pairs_cached", t->pairs_cached);
     s.add("last_vote_rows_computed", t->vote_rows_computed);
     s.add("last_earlier_pairs", t->earlier_pairs);
+    s.add("last_refinement", t->refinement);
+    s.addf("last_projective_ms", "%.1f", t->projective_ms);
   }
   std::lock_guard<std::mutex> history_lock(history_mutex_);
   s.add("history_edges", history_.size());

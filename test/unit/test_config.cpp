@@ -73,6 +73,7 @@ TEST(Config, ShippedFilesStateEveryParameterWithItsDefault) {
   expectShippedDefaults(merge, merge_yaml, m.keyframe_depth);
   expectShippedDefaults(merge, merge_yaml, m.scale_estimation);
   expectShippedDefaults(merge, merge_yaml, m.merge);
+  expectShippedDefaults(merge, merge_yaml, m.projective);
   expectShippedDefaults(merge, merge_yaml, m.limits);
 }
 

@@ -60,6 +60,10 @@ struct Refinement {
   /// initial estimate: the ratio of their thickness (surfaceThickness2(), square-rooted) [-]; 1
   /// when not measured (IcpOptions::register_noisier_as_target off).
   double noise_ratio = 1.0;
+  /// estimate and covariance are the projective registration's of the keyframes' depth
+  /// (merge.projective_refinement), not the ICP's; the gates then do not combine it with the
+  /// keyframe estimate (MergeGates::judge())
+  bool projective = false;
   double ms_icp = 0.0, ms_covariance = 0.0;
 };
 

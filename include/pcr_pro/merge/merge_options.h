@@ -14,6 +14,7 @@
 #include "pcr_pro/frontend/scale_estimation.h"
 #include "pcr_pro/io/input_limits.h"
 #include "pcr_pro/registration/config.h"
+#include "pcr_pro/registration/projective_registration.h"
 #include "pcr_pro/io/param_schema.h"
 
 namespace pcr_pro {
@@ -79,6 +80,17 @@ struct MergeGateOptions {
   double max_scale_disagreement = 0.2;
   /// Largest rotation the refinement may apply to the keyframe estimate [deg], > 0.
   double max_icp_rotation_correction_deg = 15.0;
+  /// When both maps' keyframes carry depth with a per-pixel standard deviation (LSD-SLAM
+  /// keyframes: hasDepthUncertainty()), the refinement is the projective registration of the
+  /// keyframes' depth (projective_registration.h, options in block `projective`) from the keyframe
+  /// estimate, on the keyframes of the used pairs and those within local_keyframes of the anchor
+  /// pair, instead of the ICP on the map clouds. Its estimate and covariance (keyframe jackknife
+  /// plus the two directions' difference) then go through the same gates. When it does not
+  /// converge, or the maps carry no depth uncertainty, the ICP refinement is used, and the message
+  /// says why. Off by default for its cost: each keyframe with matches costs one more
+  /// registration for the jackknife (README, Configuration: measured on the bench's worlds and on
+  /// the real LSD-SLAM bags).
+  bool projective_refinement = false;
 };
 
 /// Every parameter of MergeGateOptions (YAML block `merge`): key, type, default (the member initialiser), range, unit, doc.
@@ -96,6 +108,7 @@ struct MergeOptions {
   ScaleEstimationOptions scale_estimation;
   MergeGateOptions merge;
   RegistrationOptions registration;  ///< scale_detection, filters, icp, covariance
+  ProjectiveOptions projective;      ///< the projective refinement (merge.projective_refinement)
   InputLimits limits;                ///< resource bounds on the inputs (block `limits`)
 };
 
@@ -104,7 +117,8 @@ void validate(const MergeOptions& options);
 
 /**
  * @brief Parses a merge configuration (blocks matching, relative_pose, keyframe_depth,
- * scale_estimation, merge, scale_detection, filters, icp, covariance, limits; all optional).
+ * scale_estimation, merge, scale_detection, filters, icp, covariance, projective, limits; all
+ * optional).
  * @throw InputError "<origin>: <key>: <what>" on bad YAML, unknown keys, wrong types or ranges
  */
 MergeOptions parseMergeConfig(const std::string& text, const std::string& origin);

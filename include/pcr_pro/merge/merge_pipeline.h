@@ -66,6 +66,14 @@ struct MergeDiagnostics {
   Status refinement_status = Status::kIcpNotConverged;  ///< of the refinement, whatever the gates did
   Sim3 refined;                                     ///< the refined estimate, also when not kept
   Matrix7d refined_covariance = Matrix7d::Zero();   ///< its covariance (similarity_fit.h)
+  /// The refinement is the projective registration of the keyframes' depth
+  /// (merge.projective_refinement), not the ICP on the map clouds.
+  bool projective_refinement = false;
+  /// With merge.projective_refinement: what the projective registration did (its keyframes,
+  /// matches, jackknife and time), or why the ICP refinement was used instead; empty when off.
+  std::string projective_note;
+  int projective_keyframes_source = 0, projective_keyframes_target = 0;  ///< keyframes it registered
+  double ms_projective = 0.0;  ///< its time [ms]
 };
 
 /// Result of a merge: the contract report plus diagnostics.

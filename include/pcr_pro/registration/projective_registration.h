@@ -57,8 +57,8 @@
 
 namespace pcr_pro {
 
-/// Options of the projective registration (schema `projective`; no YAML file reads them yet, since
-/// the merge does not use this stage).
+/// Options of the projective registration (YAML block `projective` of the merge configuration;
+/// the merge uses this stage with MergeGateOptions::projective_refinement).
 struct ProjectiveOptions {
   /// Standard deviation of an image edge's position across the edge [px], > 0: pixel
   /// quantisation (1/sqrt(12) = 0.29 px) plus the edge detector's own jitter.

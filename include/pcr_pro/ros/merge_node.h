@@ -78,6 +78,9 @@ class MergeNode {
     int pairs_computed = 0, pairs_cached = 0;  // candidate pairs matched and posed / taken from the pair cache
     int vote_rows_computed = 0;  // source keyframes whose votes of the pair preselection were computed
     int earlier_pairs = 0;  // pairs that verified in earlier merges, added as no preselected pair verified
+    // "icp", or "projective" (merge.projective_refinement), with MergeDiagnostics::projective_note
+    std::string refinement = "icp";
+    double projective_ms = 0.0;  // the projective registration's part of stages.icp
   };
   struct MergeState {
     bool attempted = false;

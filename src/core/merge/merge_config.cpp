@@ -39,6 +39,10 @@ const ParamSchema<MergeGateOptions>& paramSchema<MergeGateOptions>() {
        "a refinement that changes the keyframe scale by more (relative) is ignored, or refused when the clouds fit it clearly better"},
       {"max_icp_rotation_correction_deg", &O::max_icp_rotation_correction_deg, R::above(0), "deg",
        "a refinement that rotates the keyframe estimate by more is ignored, or refused when the clouds fit it clearly better"},
+      {"projective_refinement", &O::projective_refinement, R::any(), "",
+       "when both maps' keyframes carry depth with a per-pixel standard deviation (LSD-SLAM), refine by the projective "
+       "registration of the keyframes' depth (block projective) instead of the ICP on the map clouds; costs one more "
+       "registration per keyframe with matches"},
   }};
   return schema;
 }
@@ -52,6 +56,7 @@ void validate(const MergeOptions& o) {
   validate(o.scale_estimation);
   validate(o.merge);
   validate(o.registration);
+  validate(o.projective);
   validate(o.limits);
 }
 
@@ -64,6 +69,7 @@ MergeOptions parseMergeConfig(const std::string& text, const std::string& origin
     o.scale_estimation = loadStage<ScaleEstimationOptions>(top);
     o.merge = loadStage<MergeGateOptions>(top);
     config_detail::loadRegistrationBlocks(top, &o.registration);
+    o.projective = loadStage<ProjectiveOptions>(top);
     o.limits = loadStage<InputLimits>(top);
   });
   return o;

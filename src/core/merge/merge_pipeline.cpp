@@ -190,6 +190,66 @@ void recordKeyframes(const KeyframeEstimate& kf, RegistrationReport* rep, MergeD
   if (kf.status == Status::kOk) recordKeyframeEstimate(kf, kf.pairs[static_cast<std::size_t>(kf.anchor)], rep, diag);
 }
 
+// The keyframes of `map` that the projective refinement registers: those of the used pairs and
+// those within `k` keyframes (in id order, along the path) of the anchor pair's, the region where
+// the two maps overlap and whose local similarity the edge measures (merge.local_keyframes; 0 = all).
+AgentMap overlapKeyframes(const AgentMap& map, const KeyframeEstimate& kf, bool source_side, int k) {
+  if (k <= 0) return map;
+  std::vector<long> ids;
+  for (const MapKeyframe& f : map.keyframes) ids.push_back(f.id);
+  std::sort(ids.begin(), ids.end());
+  const auto rank = [&ids](long id) { return std::lower_bound(ids.begin(), ids.end(), id) - ids.begin(); };
+  const auto idOf = [source_side](const PairEvidence& e) {
+    return source_side ? e.source_keyframe : e.target_keyframe;
+  };
+  const long centre = rank(idOf(kf.pairs[static_cast<std::size_t>(kf.anchor)]));
+  AgentMap out;
+  out.frame_id = map.frame_id;
+  out.camera = map.camera;
+  for (const MapKeyframe& f : map.keyframes) {
+    bool keep = std::abs(rank(f.id) - centre) <= k;
+    for (const PairEvidence& e : kf.pairs) keep = keep || (e.used && idOf(e) == f.id);
+    if (keep) out.keyframes.push_back(f);
+  }
+  return out;
+}
+
+// merge.projective_refinement: the projective registration of the keyframes' depth from the
+// keyframe estimate, on the overlap's keyframes (overlapKeyframes()), replaces the ICP's estimate
+// and covariance in `refinement` when it converged. Otherwise the ICP refinement stays, and the
+// note says why.
+void refineProjectively(const AgentMap& source, const AgentMap& target, const KeyframeEstimate& kf,
+                        const MergeOptions& options, Refinement* refinement, MergeDiagnostics* diag) {
+  if (!hasDepthUncertainty(source) || !hasDepthUncertainty(target)) {
+    diag->projective_note = std::string("not run: the ") + (hasDepthUncertainty(source) ? "target" : "source") +
+                            " map's keyframes carry no depth with a per-pixel standard deviation; ICP refinement";
+    return;
+  }
+  const auto t = Clock::now();
+  const AgentMap s = overlapKeyframes(source, kf, true, options.merge.local_keyframes);
+  const AgentMap g = overlapKeyframes(target, kf, false, options.merge.local_keyframes);
+  diag->projective_keyframes_source = static_cast<int>(s.keyframes.size());
+  diag->projective_keyframes_target = static_cast<int>(g.keyframes.size());
+  const ProjectiveResult p = registerProjective(s, g, kf.estimate, options.projective);
+  diag->ms_projective = msSince(t);
+  const std::string where = std::to_string(s.keyframes.size()) + " + " + std::to_string(g.keyframes.size()) +
+                            " keyframes, " + std::to_string(std::lround(diag->ms_projective)) + " ms";
+  if (p.status != Status::kOk || !p.estimate.matrix().allFinite() || !p.covariance.allFinite()) {
+    diag->projective_note = "failed (" + p.message + "; " + where + "); ICP refinement";
+    return;
+  }
+  diag->projective_refinement = true;
+  diag->projective_note = std::to_string(p.matches) + " matches, " +
+                          (p.jackknifed ? "keyframe jackknife" : "no jackknife (a map has one keyframe with matches)") +
+                          (p.direction_spread ? " and the two directions' difference" : std::string()) + ", " + where;
+  refinement->status = Status::kOk;
+  refinement->estimate = p.estimate;
+  refinement->covariance = p.covariance;
+  refinement->projective = true;
+  refinement->message = "projective registration of the keyframes' depth: " + diag->projective_note;
+  refinement->ms_icp += diag->ms_projective;
+}
+
 // A camp of the keyframe pairs: the pairs that agree with a hypothesis, pooled again without the
 // others, refined again from their own estimate, and judged by the same gates.
 struct Camp {
@@ -319,7 +379,11 @@ std::string mergedMessage(const KeyframeEstimate& kf, const PairEvidence& anchor
                                        " pair(s) that verified in earlier merges added"
                                  : std::string()) +
          "), keyframe scale " + fmt(diag.kalman_scale, 4) + " +- " + fmt(diag.kalman_scale_stddev, 2) + "; " +
-         verdict.message;
+         verdict.message +
+         (diag.projective_note.empty() ? std::string()
+          : diag.projective_refinement ? "; refinement: projective registration of the keyframes' depth (" +
+                                             diag.projective_note + ")"
+                                       : "; projective refinement " + diag.projective_note);
 }
 
 }  // namespace
@@ -367,10 +431,19 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   if (!cloud_problem.empty()) return finish(Status::kInvalidInput, cloud_problem);
   recordScaleDetection(registration, options_.registration.scale_detection, &rep);
   Refinement refinement = registration.refine(kf.estimate, kf.matches);
+  if (options_.merge.projective_refinement) refineProjectively(source, target, kf, options_, &refinement, &diag);
 
   // 4. Gates (and, when the keyframe pairs split, the side the clouds take).
   GateVerdict verdict = gates_.judge(kf, refinement, registration);
-  if (arbitrate(initializer_, gates_, registration, &kf, &refinement, &verdict)) recordKeyframes(kf, &rep, &diag);
+  if (arbitrate(initializer_, gates_, registration, &kf, &refinement, &verdict)) {
+    recordKeyframes(kf, &rep, &diag);
+    if (diag.projective_refinement) {
+      // The camp's refinement is the ICP's (judgeCamp()).
+      diag.projective_refinement = false;
+      diag.projective_note =
+          "set aside (" + diag.projective_note + "): the keyframe pairs split, ICP refinement of a camp";
+    }
+  }
   recordRefinement(refinement, &rep, &diag);
   recordVerdict(verdict, &rep, &diag);
   const PairEvidence& anchor = kf.pairs[static_cast<std::size_t>(kf.anchor)];

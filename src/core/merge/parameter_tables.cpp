@@ -32,6 +32,7 @@ std::vector<std::pair<std::string, std::string>> configParameterTables() {
   addRows<KeyframeDepthOptions>(&merge);
   addRows<ScaleEstimationOptions>(&merge);
   addRows<MergeGateOptions>(&merge);
+  addRows<ProjectiveOptions>(&merge);
   addRows<InputLimits>(&merge);
   return {{"icp_yaml", markdownTable(icp)}, {"merge_yaml", markdownTable(merge)}};
 }
