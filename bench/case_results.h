@@ -75,8 +75,8 @@ struct CaseResult {
   /// The same estimate as icp_from_truth with covariance.jackknife_blocks = kBenchJackknifeBlocks
   /// (an option, off by default): only its covariance differs.
   PeerRun icp_from_truth_jackknife;
-  /// The projective registration of the keyframes' depth (registration/projective_registration.h,
-  /// not part of the merge) from the exact truth and from our keyframe estimate; tried only when
+  /// The projective registration of the keyframes' depth alone (registration/projective_registration.h),
+  /// on the whole maps, from the exact truth and from our keyframe estimate; tried only when
   /// both maps' keyframes carry depth with a per-pixel standard deviation (LSD-SLAM keyframes).
   PeerRun projective_from_truth, projective_from_keyframes;
   /// projective_from_keyframes' estimate scored under the stage's Gauss-Newton covariance alone
@@ -84,6 +84,14 @@ struct CaseResult {
   /// keyframe jackknife (ProjectiveResult::jackknifed).
   PeerRun projective_from_keyframes_gauss_newton;
   bool projective_jackknifed = false;
+  /// The whole merge again with merge.projective_refinement on (a fresh pipeline, so its time
+  /// includes the features), scored as `reported`; tried only when both maps' keyframes carry
+  /// depth with a per-pixel standard deviation, overlapping or not. `projective_used`: the
+  /// reported refinement was the projective one (MergeDiagnostics::projective_refinement).
+  PeerRun merged_projective;
+  Score merged_projective_local;  ///< the same against its anchor pair's local truth, when known
+  bool projective_used = false;
+  double projective_stage_ms = 0.0;  ///< of merged_projective.ms, the projective registration's own
 };
 
 /// Blocks of the bench's jackknife row (CaseResult::icp_from_truth_jackknife).
