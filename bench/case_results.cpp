@@ -564,25 +564,26 @@ void writeMergedProjective(std::FILE* md, const std::vector<CaseResult>& results
     if (c.reported_local.has && c.reported_local.has_covariance) without_local.push_back(c.reported_local);
   }
   if (n + apart == 0) return;
-  const NeesPool a = pool(with), b = pool(without), al = pool(with_local), bl = pool(without_local);
-  std::fprintf(md, "**The merge with `merge.projective_refinement`** (off by default; the refinement is the projective "
-                   "registration above, from the keyframe estimate, on the overlap's keyframes, whenever it converges), "
-                   "on the same %d overlapping cases: within the floors on **%d / %d** (default merge: %d / %d); the "
-                   "projective refinement was the one reported on %d; false merges on the %d cases that do not "
-                   "overlap: %d (default: %d). ANEES rotation / 6-DoF / scale (fraction under the chi-square 95 %% "
-                   "bound) over the merges reported OK, against the anchor keyframe pair's local truth (what the covariance "
-                   "stands for; n = %d): %s / %s / %s (default: %s / %s / %s); against the global truth: %s / %s / %s "
-                   "(default: %s / %s / %s). Median time per merge "
-                   "from a fresh pipeline: %s ms, of which the projective registration %s ms (rows `pcr_pro reported with "
-                   "merge.projective_refinement` of the CSV).\n\n",
-               n, within, n, within_default, n, used, apart, false_merges, false_default, al.n,
-               neesCell(al.anees_rot, al.under_rot).c_str(), neesCell(al.anees6, al.under6).c_str(),
-               neesCell(al.anees_scale, al.under_scale).c_str(), neesCell(bl.anees_rot, bl.under_rot).c_str(),
-               neesCell(bl.anees6, bl.under6).c_str(), neesCell(bl.anees_scale, bl.under_scale).c_str(),
-               neesCell(a.anees_rot, a.under_rot).c_str(), neesCell(a.anees6, a.under6).c_str(),
-               neesCell(a.anees_scale, a.under_scale).c_str(), neesCell(b.anees_rot, b.under_rot).c_str(),
-               neesCell(b.anees6, b.under6).c_str(), neesCell(b.anees_scale, b.under_scale).c_str(),
-               fmt(median(ms), 0).c_str(), fmt(median(ms_stage), 0).c_str());
+  // "rotation / 6-DoF / scale" cells of a pool.
+  const auto cells = [](const std::vector<Score>& scores) {
+    const NeesPool p = pool(scores);
+    return neesCell(p.anees_rot, p.under_rot) + " / " + neesCell(p.anees6, p.under6) + " / " +
+           neesCell(p.anees_scale, p.under_scale);
+  };
+  std::fprintf(md,
+               "**The merge with `merge.projective_refinement`** (off by default; the refinement is the projective "
+               "registration above, from the keyframe estimate, on the overlap's keyframes, whenever it "
+               "converges), on the same %d overlapping cases: within the floors on **%d / %d** (default merge: "
+               "%d / %d); the projective refinement was the one reported on %d; false merges on the %d cases that "
+               "do not overlap: %d (default: %d). ANEES rotation / 6-DoF / scale (fraction under the chi-square "
+               "95 %% bound) over the merges reported OK, against the anchor keyframe pair's local truth (what the "
+               "covariance stands for; n = %d): %s (default: %s); against the global truth: %s (default: %s). "
+               "Median time per merge from a fresh pipeline: %s ms, of which the projective registration %s ms "
+               "(rows `pcr_pro reported with merge.projective_refinement` of the CSV).\n\n",
+               n, within, n, within_default, n, used, apart, false_merges, false_default,
+               pool(with_local).n, cells(with_local).c_str(), cells(without_local).c_str(),
+               cells(with).c_str(), cells(without).c_str(), fmt(median(ms), 0).c_str(),
+               fmt(median(ms_stage), 0).c_str());
 }
 
 void writeProjective(std::FILE* md, const std::vector<CaseResult>& results) {
@@ -617,8 +618,8 @@ void writeProjective(std::FILE* md, const std::vector<CaseResult>& results) {
   if (n == 0) return;
   std::fprintf(md, "**Projective registration of the keyframes' depth** (registration/projective_registration.h: each "
                    "map's LSD keyframe pixels projected into the other map's keyframes, residuals in depth, across "
-                   "the image edge and in grey level, both directions, the better-fitting one kept; the stage alone on the "
-                   "whole maps, README), on the "
+                   "the image edge and in grey level, both directions, the better-fitting one kept; the stage "
+                   "alone on the whole maps, README), on the "
                    "%d overlapping cases whose keyframes carry LSD depth with its variance: from the exact truth within "
                    "the floors on **%d / %d** (our refinement from the truth on the same cases: %d / %d; %d not converged "
                    "within the stage's iteration limit, not counted), median "
