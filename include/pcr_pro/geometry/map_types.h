@@ -6,6 +6,7 @@
 
 #include <opencv2/core.hpp>
 
+#include <map>
 #include <string>
 #include <vector>
 
@@ -56,5 +57,11 @@ struct AgentMap {
   PinholeCamera camera;
   std::vector<MapKeyframe> keyframes;
 };
+
+/// Each keyframe id of `map` -> its rank along the path: how many of the map's keyframes have a
+/// smaller id. Ids grow along the path in LSD-SLAM and in the simulator, so |rank difference| is
+/// the distance along the path that merge.local_keyframes bounds (the front end's extra pairs,
+/// the initializer's neighbourhood, the projective refinement's keyframes).
+std::map<long, long> keyframeRanks(const AgentMap& map);
 
 }  // namespace pcr_pro

@@ -1,5 +1,6 @@
 #include "pcr_pro/geometry/map_types.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace pcr_pro {
@@ -18,6 +19,16 @@ bool PinholeCamera::project(const Eigen::Vector3d& p, double* u, double* v) cons
   *u = fx * p.x() / p.z() + cx;
   *v = fy * p.y() / p.z() + cy;
   return true;
+}
+
+std::map<long, long> keyframeRanks(const AgentMap& map) {
+  std::vector<long> ids;
+  ids.reserve(map.keyframes.size());
+  for (const MapKeyframe& kf : map.keyframes) ids.push_back(kf.id);
+  std::sort(ids.begin(), ids.end());
+  std::map<long, long> rank;
+  for (const long id : ids) rank.emplace(id, static_cast<long>(std::lower_bound(ids.begin(), ids.end(), id) - ids.begin()));
+  return rank;
 }
 
 }  // namespace pcr_pro

@@ -317,16 +317,12 @@ FrontEndResult KeyframeFrontEnd::run(const AgentMap& source, const AgentMap& tar
   // (merge.local_keyframes, SimilarityInitializer), and the votes may have left some of them out.
   const int k = options_.merge.local_keyframes;
   if (preselected && k > 0 && !out.pairs.empty() && out.pairs.front().pose.status == Status::kOk) {
-    const auto rank = [](const std::vector<const MapKeyframe*>& list, const MapKeyframe* kf) {
-      long r = 0;
-      for (const MapKeyframe* other : list) r += other->id < kf->id ? 1 : 0;
-      return r;
-    };
-    const long bs = rank(src, out.pairs.front().source), bt = rank(tgt, out.pairs.front().target);
+    const std::map<long, long> rs = keyframeRanks(source), rt = keyframeRanks(target);
+    const long bs = rs.at(out.pairs.front().source->id), bt = rt.at(out.pairs.front().target->id);
     std::vector<std::pair<std::size_t, std::size_t>> extra;
     for (std::size_t i = 0; i < src.size(); ++i) {
       for (std::size_t j = 0; j < tgt.size(); ++j) {
-        if (std::abs(rank(src, src[i]) - bs) > k || std::abs(rank(tgt, tgt[j]) - bt) > k) continue;
+        if (std::abs(rs.at(src[i]->id) - bs) > k || std::abs(rt.at(tgt[j]->id) - bt) > k) continue;
         if (std::find(pairs.begin(), pairs.end(), std::make_pair(i, j)) == pairs.end()) extra.emplace_back(i, j);
       }
     }

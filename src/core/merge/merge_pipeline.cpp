@@ -195,19 +195,16 @@ void recordKeyframes(const KeyframeEstimate& kf, RegistrationReport* rep, MergeD
 // the two maps overlap and whose local similarity the edge measures (merge.local_keyframes; 0 = all).
 AgentMap overlapKeyframes(const AgentMap& map, const KeyframeEstimate& kf, bool source_side, int k) {
   if (k <= 0) return map;
-  std::vector<long> ids;
-  for (const MapKeyframe& f : map.keyframes) ids.push_back(f.id);
-  std::sort(ids.begin(), ids.end());
-  const auto rank = [&ids](long id) { return std::lower_bound(ids.begin(), ids.end(), id) - ids.begin(); };
+  const std::map<long, long> rank = keyframeRanks(map);
   const auto idOf = [source_side](const PairEvidence& e) {
     return source_side ? e.source_keyframe : e.target_keyframe;
   };
-  const long centre = rank(idOf(kf.pairs[static_cast<std::size_t>(kf.anchor)]));
+  const long centre = rank.at(idOf(kf.pairs[static_cast<std::size_t>(kf.anchor)]));
   AgentMap out;
   out.frame_id = map.frame_id;
   out.camera = map.camera;
   for (const MapKeyframe& f : map.keyframes) {
-    bool keep = std::abs(rank(f.id) - centre) <= k;
+    bool keep = std::abs(rank.at(f.id) - centre) <= k;
     for (const PairEvidence& e : kf.pairs) keep = keep || (e.used && idOf(e) == f.id);
     if (keep) out.keyframes.push_back(f);
   }

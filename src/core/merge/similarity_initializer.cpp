@@ -338,15 +338,7 @@ double mahalanobis2(const Vector7d& d, const Matrix7d& c) {
 // many pairs were set aside.
 int keepNeighbourhood(const AgentMap& source, const AgentMap& target, int k, std::vector<PairEvidence>* pairs) {
   if (k <= 0) return 0;
-  const auto ranks = [](const AgentMap& map) {
-    std::vector<long> ids;
-    for (const MapKeyframe& kf : map.keyframes) ids.push_back(kf.id);
-    std::sort(ids.begin(), ids.end());
-    std::map<long, long> rank;
-    for (std::size_t i = 0; i < ids.size(); ++i) rank[ids[i]] = static_cast<long>(i);
-    return rank;
-  };
-  const std::map<long, long> rs = ranks(source), rt = ranks(target);
+  const std::map<long, long> rs = keyframeRanks(source), rt = keyframeRanks(target);
   const PairEvidence* best = nullptr;
   for (const PairEvidence& e : *pairs) {
     if (e.used) {
