@@ -620,11 +620,14 @@ void MergeNode::publishMerge(const MergeJob& job, const Snapshot& source, const 
   }
   if (options_.publish_tf) static_tf_.sendTransform(rigidTransformToMsg(s, names.target_frame, scaled, stamp));
   recordHistory(job, *edge, message);
-  ROS_INFO("merged %s into %s (%s): scale %.5g +- %.2g, t [%.4g %.4g %.4g], keyframes %ld -> %ld, fitness %.4g, %d "
-           "correspondences",
-           job.source.c_str(), job.target.c_str(), job.trigger.c_str(), s.scale(), edge->scale_stddev,
-           s.translation().x(), s.translation().y(), s.translation().z(), static_cast<long>(edge->source_keyframe),
-           static_cast<long>(edge->target_keyframe), edge->fitness_rmse, edge->correspondences);
+  char fit[96] = "no ICP result";  // the keyframe estimate kept, or the projective refinement
+  if (edge->correspondences > 0) {
+    std::snprintf(fit, sizeof fit, "fitness %.4g, %d correspondences", edge->fitness_rmse, edge->correspondences);
+  }
+  ROS_INFO("merged %s into %s (%s): scale %.5g +- %.2g, t [%.4g %.4g %.4g], keyframes %ld -> %ld, %s", job.source.c_str(),
+           job.target.c_str(), job.trigger.c_str(), s.scale(), edge->scale_stddev, s.translation().x(),
+           s.translation().y(), s.translation().z(), static_cast<long>(edge->source_keyframe),
+           static_cast<long>(edge->target_keyframe), fit);
 }
 
 void MergeNode::writePoseGraph(const MergeJob& job, const AgentMap& source_map, const AgentMap& target_map,

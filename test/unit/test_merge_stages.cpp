@@ -1078,6 +1078,10 @@ TEST(NoisyWorld, OnRequestTheProjectiveRegistrationOfLsdDepthIsTheRefinement) {
   // Reported as it is: its covariance holds the keyframe jackknife and the directions' difference.
   EXPECT_FALSE(r.diagnostics.combined);
   EXPECT_TRUE(r.diagnostics.refined.matrix() == r.report.transform->matrix());
+  // The ICP on the clouds did not run: no ICP figures are reported.
+  EXPECT_FALSE(r.report.fitness_rmse.has_value());
+  EXPECT_FALSE(r.report.correspondences.has_value());
+  EXPECT_EQ(r.report.icp_iterations, 0);
   const double rotation = rotationDistance(r.report.transform->rotation(), truth.rotation());
   std::printf("projective refinement: %.2f deg, scale %+.2f %% from the truth, 6-DoF NEES %.2f (%s)\n",
               rotation / test::rad(1.0), 100.0 * (r.report.transform->scale() / truth.scale() - 1.0),
@@ -1100,6 +1104,48 @@ TEST(NoisyWorld, OnRequestTheProjectiveRegistrationOfLsdDepthIsTheRefinement) {
   if (without.report.transform && without_default.report.transform) {
     EXPECT_TRUE(without.report.transform->matrix() == without_default.report.transform->matrix());
   }
+}
+
+// Without its keyframe jackknife (here: only the anchor keyframe of the target map keeps its depth's
+// standard deviation, so that map has one keyframe with matches) the projective covariance holds no
+// keyframe's error, and the merge keeps the ICP refinement: the same result, bit for bit, as with the
+// option off. With projective.jackknife switched off by the user, the projective result is used.
+TEST(NoisyWorld, WithoutItsKeyframeJackknifeTheProjectiveRefinementGivesWayToTheIcp) {
+  const Simulation sim = simulate(test::benchWorldOptions(0.60, 0.025, 0.01, 0, false));
+  const AgentMap a = test::withLsdKeyframeDepth(sim.agents[0], sim.options.camera);
+  const AgentMap b = test::withLsdKeyframeDepth(sim.agents[1], sim.options.camera);
+  const MergeResult first = mergeMaps(b, a, MergeRequest(), MergeOptions());
+  ASSERT_EQ(first.report.status, Status::kOk) << first.report.message;
+  ASSERT_TRUE(first.report.target_keyframe.has_value());
+  AgentMap a_one = a;
+  int without = 0;
+  for (MapKeyframe& kf : a_one.keyframes) {
+    if (kf.id == *first.report.target_keyframe) continue;
+    kf.depth_stddev = cv::Mat::zeros(kf.depth_stddev.size(), CV_32FC1);  // 0 = unknown
+    ++without;
+  }
+  ASSERT_GT(without, 1);
+  MergeOptions projective;
+  projective.merge.projective_refinement = true;
+  const MergeResult r = mergeMaps(b, a_one, MergeRequest(), projective);
+  const MergeResult icp = mergeMaps(b, a_one, MergeRequest(), MergeOptions());
+  EXPECT_FALSE(r.diagnostics.projective_refinement) << r.diagnostics.projective_note;
+  EXPECT_EQ(r.diagnostics.projective_note.rfind("not used (no keyframe jackknife", 0), 0u) << r.diagnostics.projective_note;
+  EXPECT_NE(r.report.message.find("projective refinement not used (no keyframe jackknife"), std::string::npos)
+      << r.report.message;
+  ASSERT_EQ(r.report.status, icp.report.status) << r.report.message;
+  ASSERT_EQ(r.report.transform.has_value(), icp.report.transform.has_value());
+  if (r.report.transform) {
+    EXPECT_TRUE(r.report.transform->matrix() == icp.report.transform->matrix());
+    EXPECT_TRUE(*r.report.covariance == *icp.report.covariance);
+  }
+
+  MergeOptions no_jackknife = projective;
+  no_jackknife.projective.jackknife = false;
+  const MergeResult taken = mergeMaps(b, a_one, MergeRequest(), no_jackknife);
+  EXPECT_TRUE(taken.diagnostics.projective_refinement) << taken.diagnostics.projective_note;
+  EXPECT_NE(taken.diagnostics.projective_note.find("no jackknife (projective.jackknife off)"), std::string::npos)
+      << taken.diagnostics.projective_note;
 }
 
 TEST(MergeGates, AlignedMapsThatDoNotOverlapAreNoOverlap) {

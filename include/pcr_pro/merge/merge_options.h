@@ -86,8 +86,10 @@ struct MergeGateOptions {
   /// estimate, on the keyframes of the used pairs and those within local_keyframes of the anchor
   /// pair, instead of the ICP on the map clouds. Its estimate and covariance (keyframe jackknife
   /// plus the two directions' difference) then go through the same gates. When it does not
-  /// converge, or the maps carry no depth uncertainty, the ICP refinement is used, and the message
-  /// says why. Off by default for its cost: each keyframe with matches costs one more
+  /// converge, when its keyframe jackknife is not possible (a map's overlap holds fewer than two
+  /// keyframes with matches, with projective.jackknife on: its covariance would then hold no
+  /// keyframe's error), or the maps carry no depth uncertainty, the ICP refinement is used, and the
+  /// message says why. Off by default for its cost: each keyframe with matches costs one more
   /// registration for the jackknife (README, Configuration: measured on the bench's worlds and on
   /// the real LSD-SLAM bags).
   bool projective_refinement = false;

@@ -151,7 +151,8 @@ void recordRefinement(const Refinement& refinement, RegistrationReport* rep, Mer
   rep->timings.icp = refinement.ms_icp;
   rep->timings.covariance = refinement.ms_covariance;
   rep->icp_iterations = refinement.icp.iterations;
-  if (refinement.status == Status::kOk || refinement.status == Status::kDegenerate) {
+  if (!refinement.projective && (refinement.status == Status::kOk || refinement.status == Status::kDegenerate)) {
+    // (The ICP's figures: none when the projective registration was the refinement.)
     rep->fitness_rmse = refinement.icp.fitness_rmse;
     rep->correspondences = refinement.icp.correspondences;
     rep->condition_number = refinement.closed_form.condition_number;
@@ -212,15 +213,16 @@ AgentMap overlapKeyframes(const AgentMap& map, const KeyframeEstimate& kf, bool 
 }
 
 // merge.projective_refinement: the projective registration of the keyframes' depth from the
-// keyframe estimate, on the overlap's keyframes (overlapKeyframes()), replaces the ICP's estimate
-// and covariance in `refinement` when it converged. Otherwise the ICP refinement stays, and the
-// note says why.
-void refineProjectively(const AgentMap& source, const AgentMap& target, const KeyframeEstimate& kf,
+// keyframe estimate, on the overlap's keyframes (overlapKeyframes()), is the refinement when it
+// converged and (projective.jackknife on) its keyframe jackknife was possible: `refinement` is then
+// set and the ICP on the map clouds does not run. Otherwise the note says why, and the caller runs
+// the ICP. @return whether `refinement` was set
+bool refineProjectively(const AgentMap& source, const AgentMap& target, const KeyframeEstimate& kf,
                         const MergeOptions& options, Refinement* refinement, MergeDiagnostics* diag) {
   if (!hasDepthUncertainty(source) || !hasDepthUncertainty(target)) {
     diag->projective_note = std::string("not run: the ") + (hasDepthUncertainty(source) ? "target" : "source") +
                             " map's keyframes carry no depth with a per-pixel standard deviation; ICP refinement";
-    return;
+    return false;
   }
   const auto t = Clock::now();
   const AgentMap s = overlapKeyframes(source, kf, true, options.merge.local_keyframes);
@@ -233,18 +235,28 @@ void refineProjectively(const AgentMap& source, const AgentMap& target, const Ke
                             " keyframes, " + std::to_string(std::lround(diag->ms_projective)) + " ms";
   if (p.status != Status::kOk || !p.estimate.matrix().allFinite() || !p.covariance.allFinite()) {
     diag->projective_note = "failed (" + p.message + "; " + where + "); ICP refinement";
-    return;
+    return false;
+  }
+  if (options.projective.jackknife && !p.jackknifed) {
+    // Without the jackknife its covariance holds no keyframe's error: the Gauss-Newton covariance
+    // (plus the directions' difference, one direction of seven) was 150-1,300 times too confident
+    // on the bench's LSD maps (ProjectiveOptions::jackknife), and the gates would take it at its word.
+    diag->projective_note = "not used (no keyframe jackknife: " + std::to_string(p.jackknife_moving_keyframes) +
+                            " moving and " + std::to_string(p.jackknife_fixed_keyframes) +
+                            " fixed keyframes with matches left out, 2 of each needed; " + where + "); ICP refinement";
+    return false;
   }
   diag->projective_refinement = true;
   diag->projective_note = std::to_string(p.matches) + " matches, " +
-                          (p.jackknifed ? "keyframe jackknife" : "no jackknife (a map has one keyframe with matches)") +
+                          (p.jackknifed ? "keyframe jackknife" : "no jackknife (projective.jackknife off)") +
                           (p.direction_spread ? " and the two directions' difference" : std::string()) + ", " + where;
   refinement->status = Status::kOk;
   refinement->estimate = p.estimate;
   refinement->covariance = p.covariance;
   refinement->projective = true;
   refinement->message = "projective registration of the keyframes' depth: " + diag->projective_note;
-  refinement->ms_icp += diag->ms_projective;
+  refinement->ms_icp = diag->ms_projective;
+  return true;
 }
 
 // A camp of the keyframe pairs: the pairs that agree with a hypothesis, pooled again without the
@@ -427,8 +439,10 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   rep.timings.filters = registration.filterMs();
   if (!cloud_problem.empty()) return finish(Status::kInvalidInput, cloud_problem);
   recordScaleDetection(registration, options_.registration.scale_detection, &rep);
-  Refinement refinement = registration.refine(kf.estimate, kf.matches);
-  if (options_.merge.projective_refinement) refineProjectively(source, target, kf, options_, &refinement, &diag);
+  Refinement refinement;
+  if (!options_.merge.projective_refinement || !refineProjectively(source, target, kf, options_, &refinement, &diag)) {
+    refinement = registration.refine(kf.estimate, kf.matches);
+  }
 
   // 4. Gates (and, when the keyframe pairs split, the side the clouds take).
   GateVerdict verdict = gates_.judge(kf, refinement, registration);
