@@ -573,7 +573,8 @@ void writeMergedProjective(std::FILE* md, const std::vector<CaseResult>& results
   std::fprintf(md,
                "**The merge with `merge.projective_refinement`** (off by default; the refinement is the projective "
                "registration above, from the keyframe estimate, on the overlap's keyframes, whenever it "
-               "converges and its keyframe jackknife is possible), on the same %d overlapping cases: within the floors on **%d / %d** (default merge: "
+               "converges and its keyframe jackknife is possible), on the same %d overlapping cases: within the "
+               "floors on **%d / %d** (default merge: "
                "%d / %d); the projective refinement was the one reported on %d; false merges on the %d cases that "
                "do not overlap: %d (default: %d). ANEES rotation / 6-DoF / scale (fraction under the chi-square "
                "95 %% bound) over the merges reported OK, against the anchor keyframe pair's local truth (what the "

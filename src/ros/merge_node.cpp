@@ -624,9 +624,9 @@ void MergeNode::publishMerge(const MergeJob& job, const Snapshot& source, const 
   if (edge->correspondences > 0) {
     std::snprintf(fit, sizeof fit, "fitness %.4g, %d correspondences", edge->fitness_rmse, edge->correspondences);
   }
-  ROS_INFO("merged %s into %s (%s): scale %.5g +- %.2g, t [%.4g %.4g %.4g], keyframes %ld -> %ld, %s", job.source.c_str(),
-           job.target.c_str(), job.trigger.c_str(), s.scale(), edge->scale_stddev, s.translation().x(),
-           s.translation().y(), s.translation().z(), static_cast<long>(edge->source_keyframe),
+  ROS_INFO("merged %s into %s (%s): scale %.5g +- %.2g, t [%.4g %.4g %.4g], keyframes %ld -> %ld, %s",
+           job.source.c_str(), job.target.c_str(), job.trigger.c_str(), s.scale(), edge->scale_stddev,
+           s.translation().x(), s.translation().y(), s.translation().z(), static_cast<long>(edge->source_keyframe),
            static_cast<long>(edge->target_keyframe), fit);
 }
 

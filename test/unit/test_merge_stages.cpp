@@ -1130,7 +1130,8 @@ TEST(NoisyWorld, WithoutItsKeyframeJackknifeTheProjectiveRefinementGivesWayToThe
   const MergeResult r = mergeMaps(b, a_one, MergeRequest(), projective);
   const MergeResult icp = mergeMaps(b, a_one, MergeRequest(), MergeOptions());
   EXPECT_FALSE(r.diagnostics.projective_refinement) << r.diagnostics.projective_note;
-  EXPECT_EQ(r.diagnostics.projective_note.rfind("not used (no keyframe jackknife", 0), 0u) << r.diagnostics.projective_note;
+  EXPECT_EQ(r.diagnostics.projective_note.rfind("not used (no keyframe jackknife", 0), 0u)
+      << r.diagnostics.projective_note;
   EXPECT_NE(r.report.message.find("projective refinement not used (no keyframe jackknife"), std::string::npos)
       << r.report.message;
   ASSERT_EQ(r.report.status, icp.report.status) << r.report.message;

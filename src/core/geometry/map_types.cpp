@@ -27,7 +27,9 @@ std::map<long, long> keyframeRanks(const AgentMap& map) {
   for (const MapKeyframe& kf : map.keyframes) ids.push_back(kf.id);
   std::sort(ids.begin(), ids.end());
   std::map<long, long> rank;
-  for (const long id : ids) rank.emplace(id, static_cast<long>(std::lower_bound(ids.begin(), ids.end(), id) - ids.begin()));
+  for (std::size_t i = 0; i < ids.size(); ++i) {
+    if (i == 0 || ids[i] != ids[i - 1]) rank.emplace(ids[i], static_cast<long>(i));  // the first of equal ids
+  }
   return rank;
 }
 

@@ -41,8 +41,8 @@ const ParamSchema<MergeGateOptions>& paramSchema<MergeGateOptions>() {
        "a refinement that rotates the keyframe estimate by more is ignored, or refused when the clouds fit it clearly better"},
       {"projective_refinement", &O::projective_refinement, R::any(), "",
        "when both maps' keyframes carry depth with a per-pixel standard deviation (LSD-SLAM), refine by the projective "
-       "registration of the keyframes' depth (block projective) instead of the ICP on the map clouds, when it converges "
-       "and its keyframe jackknife is possible; costs one more registration per keyframe with matches"},
+       "registration of the keyframes' depth (block projective) instead of the ICP on the map clouds, when it "
+       "converges and its keyframe jackknife is possible; costs one more registration per keyframe with matches"},
   }};
   return schema;
 }
