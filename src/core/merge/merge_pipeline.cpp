@@ -442,6 +442,7 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   Refinement refinement;
   if (!options_.merge.projective_refinement || !refineProjectively(source, target, kf, options_, &refinement, &diag)) {
     refinement = registration.refine(kf.estimate, kf.matches);
+    refinement.ms_icp += diag.ms_projective;  // a projective stage that ran and was not used (else 0)
   }
 
   // 4. Gates (and, when the keyframe pairs split, the side the clouds take).
