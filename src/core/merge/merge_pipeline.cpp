@@ -219,8 +219,9 @@ AgentMap overlapKeyframes(const AgentMap& map, const KeyframeEstimate& kf, bool 
 // the ICP. @return whether `refinement` was set
 bool refineProjectively(const AgentMap& source, const AgentMap& target, const KeyframeEstimate& kf,
                         const MergeOptions& options, Refinement* refinement, MergeDiagnostics* diag) {
-  if (!hasDepthUncertainty(source) || !hasDepthUncertainty(target)) {
-    diag->projective_note = std::string("not run: the ") + (hasDepthUncertainty(source) ? "target" : "source") +
+  const bool source_ok = hasDepthUncertainty(source);
+  if (!source_ok || !hasDepthUncertainty(target)) {
+    diag->projective_note = std::string("not run: the ") + (source_ok ? "target" : "source") +
                             " map's keyframes carry no depth with a per-pixel standard deviation; ICP refinement";
     return false;
   }
@@ -475,8 +476,11 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
     // Unobservable directions: the closed form's information is zero along them.
     rep.covariance = cov.allFinite() ? cov : refinement.closed_form.covariance;
     rep.information = refinement.closed_form.information;
-    return finish(Status::kDegenerate, finite ? verdict.message : "the covariance is not positive definite; " +
-                                                                      refinement.closed_form.message);
+    // (A projective refinement has no closed form: its information is then zero, with no message.)
+    const std::string& closed = refinement.closed_form.message;
+    return finish(Status::kDegenerate, finite ? verdict.message
+                                              : "the covariance is not positive definite" +
+                                                    (closed.empty() ? std::string() : "; " + closed));
   }
   rep.covariance = cov;
   rep.information = info;
