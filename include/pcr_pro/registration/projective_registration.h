@@ -110,6 +110,16 @@ struct ProjectiveOptions {
   /// otherwise the covariance holds no keyframe's error and ProjectiveResult::jackknifed is false.
   /// Costs one registration of one direction per keyframe with matches.
   bool jackknife = true;
+  /// The jackknife's leave-outs use every n-th of the moving points [-], >= 1 (1: all of them): a
+  /// trade of the covariance's fidelity for time. The leave-outs then start from the subsample's own
+  /// estimate with every keyframe (one more registration), the same subsample in each, so the shift
+  /// it makes is common to all and the spread, taken about the leave-outs' mean, does not hold it.
+  /// What the subsample adds is its own noise in each leave-out, which widens the spread: measured
+  /// (make bench sections, README, Troubleshooting), 2 kept the covariance's calibration and 4 made
+  /// it too wide on the simulated worlds; on the real LSD-SLAM bags the merge with
+  /// merge.projective_refinement took 9.6 s with 2 and 6.6-8.6 s with 4, against 11.5-12.7 s with 1.
+  /// The subsample leaves the estimate as it is.
+  int jackknife_point_step = 1;
   /// The covariance also adds the difference δ between the two directions' estimates as a spread
   /// δδᵀ (without its cross terms, as the jackknife's). The moving points' own depth noise biases
   /// each direction differently (file comment), and that bias is shared by every keyframe, so the

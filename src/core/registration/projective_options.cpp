@@ -26,6 +26,8 @@ const ParamSchema<ProjectiveOptions>& paramSchema<ProjectiveOptions>() {
        "standard deviation of the Gaussian that smooths the images before their grey levels are compared"},
       {"jackknife", &O::jackknife, R::any(), "",
        "the covariance adds the estimate's spread when each keyframe is left out in turn"},
+      {"jackknife_point_step", &O::jackknife_point_step, R::atLeast(1), "",
+       "the jackknife's leave-outs use every n-th of the moving points"},
       {"direction_spread", &O::direction_spread, R::any(), "",
        "the covariance adds the difference between the two directions' estimates as a spread"},
   }};
