@@ -563,9 +563,11 @@ Response MergeNode::mergeMaps(const MergeJob& job, const Snapshot& s, const Agen
   timing->pairs_computed = result.diagnostics.candidate_pairs - result.diagnostics.pairs_cached;
   timing->vote_rows_computed = result.diagnostics.vote_rows_computed;
   timing->earlier_pairs = result.diagnostics.earlier_pairs;
+  // "projective (its matches, covariance, time)", "icp (projective: why it was not used)" or "icp".
   timing->refinement = result.diagnostics.projective_refinement ? "projective" : "icp";
   if (!result.diagnostics.projective_note.empty()) {
-    timing->refinement += " (projective: " + result.diagnostics.projective_note + ")";
+    timing->refinement += std::string(result.diagnostics.projective_refinement ? " (" : " (projective: ") +
+                          result.diagnostics.projective_note + ")";
   }
   timing->projective_ms = result.diagnostics.ms_projective;
   // The pipeline cached the features of the snapshot's keyframes; those that left the map
