@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <string>
+#include <utility>
 
 #include "pcr_pro/geometry/similarity_fit.h"
 #include "pcr_pro/registration/projective_registration.h"
@@ -111,25 +112,31 @@ TEST(Projective, ACreepingEstimateIsExtrapolatedAndAnUnfinishedOneIsNotOk) {
 
 // Two maps whose depth disagrees beyond its per-pixel variance, as two monocular maps' scale drift
 // makes it: every keyframe's depth of both maps scaled by its own factor exp(0.1 g), g ~ N(0, 1),
-// poses untouched. The stage measures the disagreement (rho) from its depth residuals and weighs the
-// depth by it. Measured on seeds 0-2 from 1 deg off: rho 0.027-0.077; 0.29-2.30 deg from the truth
-// (mean 1.1) with it, 0.51-5.61 deg (mean 2.4) without (before the photometric rows: 1.07-4.48 deg
-// with it, 2.2-15.4 without).
+// poses untouched. @return the world and a start 1 deg, 1 % and a few centimetres off its truth
+std::pair<World, Sim3> driftedLsdWorld(int seed) {
+  Eigen::Matrix<double, 7, 1> kick;
+  kick << 0.02, -0.01, 0.015, 0.012, -0.008, 0.01, 0.01;
+  World w = lsdWorld(seed, 0.01, -1.0);
+  cv::RNG rng(seed + 7);
+  for (AgentMap* m : {&w.source, &w.target}) {
+    for (MapKeyframe& k : m->keyframes) k.depth = k.depth * std::exp(0.1 * rng.gaussian(1.0));
+  }
+  const Sim3 start = applyDelta(kick, w.truth);
+  return {std::move(w), start};
+}
+
+// On the maps of driftedLsdWorld(), the stage measures the disagreement (rho) from its depth
+// residuals and weighs the depth by it. Measured on seeds 0-2 from 1 deg off: rho 0.027-0.077;
+// 0.29-2.30 deg from the truth (mean 1.1) with it, 0.51-5.61 deg (mean 2.4) without (before the
+// photometric rows: 1.07-4.48 deg with it, 2.2-15.4 without).
 // On the same worlds undistorted, rho is 0 (first test). The covariance's keyframe jackknife covers
 // the error such keyframes make (ProjectiveOptions::jackknife, direction_spread).
 TEST(Projective, TheMapsDepthDisagreementIsMeasuredAndWeighed) {
-  Eigen::Matrix<double, 7, 1> kick;
-  kick << 0.02, -0.01, 0.015, 0.012, -0.008, 0.01, 0.01;
   ProjectiveOptions off;
   off.depth_disagreement = false;
   double with = 0.0, without = 0.0;
   for (int seed : {0, 1, 2}) {
-    World w = lsdWorld(seed, 0.01, -1.0);
-    cv::RNG rng(seed + 7);
-    for (AgentMap* m : {&w.source, &w.target}) {
-      for (MapKeyframe& k : m->keyframes) k.depth = k.depth * std::exp(0.1 * rng.gaussian(1.0));
-    }
-    const Sim3 start = applyDelta(kick, w.truth);
+    const auto [w, start] = driftedLsdWorld(seed);
     const ProjectiveResult a = registerProjective(w.source, w.target, start);
     const ProjectiveResult b = registerProjective(w.source, w.target, start, off);
     ASSERT_EQ(a.status, Status::kOk) << "seed " << seed << ": " << a.message;
@@ -161,23 +168,16 @@ TEST(Projective, TheMapsDepthDisagreementIsMeasuredAndWeighed) {
 }
 
 // The jackknife's leave-outs on a 1-in-4 subsample of the moving points
-// (ProjectiveOptions::jackknife_point_step) against all of them (the default), on the drifted worlds
-// above: the estimate and the Gauss-Newton covariance are the same (the subsample is the jackknife's
-// only), and the spread the leave-outs measure keeps its order: what each keyframe gets wrong is
-// above the noise that the subsample adds. Measured 2026-12-06 on seeds 0-2: 1-sigma ratios 0.96-1.56
+// (ProjectiveOptions::jackknife_point_step) against all of them (the default), on driftedLsdWorld():
+// the estimate and the Gauss-Newton covariance are the same (the subsample is the jackknife's only),
+// and the spread the leave-outs measure keeps its order: what each keyframe gets wrong is above the
+// noise that the subsample adds. Measured 2026-12-06 on seeds 0-2: 1-sigma ratios 0.96-1.56
 // (the subsample wider, seed 2's rotation most), 7-DoF NEES 1.7-3.9 with it and 1.7-4.3 without.
 TEST(Projective, TheJackknifesSubsampleKeepsTheEstimateAndTheSpread) {
-  Eigen::Matrix<double, 7, 1> kick;
-  kick << 0.02, -0.01, 0.015, 0.012, -0.008, 0.01, 0.01;
   ProjectiveOptions subsampled;
   subsampled.jackknife_point_step = 4;
   for (int seed : {0, 1, 2}) {
-    World w = lsdWorld(seed, 0.01, -1.0);
-    cv::RNG rng(seed + 7);
-    for (AgentMap* m : {&w.source, &w.target}) {
-      for (MapKeyframe& k : m->keyframes) k.depth = k.depth * std::exp(0.1 * rng.gaussian(1.0));
-    }
-    const Sim3 start = applyDelta(kick, w.truth);
+    const auto [w, start] = driftedLsdWorld(seed);
     const ProjectiveResult sub = registerProjective(w.source, w.target, start, subsampled);
     const ProjectiveResult full = registerProjective(w.source, w.target, start);
     ASSERT_EQ(sub.status, Status::kOk) << "seed " << seed << ": " << sub.message;
