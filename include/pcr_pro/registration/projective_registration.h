@@ -114,9 +114,9 @@ struct ProjectiveOptions {
   /// trade of the covariance's fidelity for time. The leave-outs then start from the subsample's own
   /// estimate with every keyframe (one more registration), the same subsample in each, so the shift
   /// it makes is common to all and the spread, taken about the leave-outs' mean, does not hold it.
-  /// What the subsample adds is its own noise in each leave-out, which widens the spread: measured
-  /// (make bench sections, README, Troubleshooting), 2 kept the covariance's calibration and 4 made
-  /// it too wide on the simulated worlds; on the real LSD-SLAM bags the merge with
+  /// What the subsample adds is its own noise in each leave-out, which on the whole widens the
+  /// spread. Measured (make bench sections, README, Troubleshooting): 2 kept the covariance's
+  /// calibration and 4 made it too wide on the simulated worlds; on the real LSD-SLAM bags the merge with
   /// merge.projective_refinement took 9.6 s with 2 and 6.6-8.6 s with 4, against 11.5-12.7 s with 1.
   /// The subsample leaves the estimate as it is.
   int jackknife_point_step = 1;
