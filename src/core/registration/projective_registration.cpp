@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <limits>
 #include <map>
+#include <utility>
 #include <vector>
 
 #include "pcr_pro/geometry/median.h"
@@ -567,24 +568,38 @@ Jackknife jackknifeKeyframes(const std::vector<MovingPoint>& points, const std::
     if (!r.converged) ++out.not_converged;
     deltas->push_back(d);
   };
-  std::vector<Vector7d> moving, fixed;
+  // The leave-outs: each moving keyframe with matches, then each fixed one. They are independent and
+  // run side by side, each on one thread (the registration's own loops give the same result on any
+  // number of threads, matchesAt()); more of the work is then parallel than within one registration,
+  // whose robust medians and normal equations are serial.
+  std::vector<std::pair<bool, std::size_t>> jobs;  // (a moving keyframe?, its index)
   for (std::size_t kf = 0; kf < full.moving_matches.size(); ++kf) {
-    if (full.moving_matches[kf] < kMinMatches) continue;
-    std::vector<MovingPoint> kept;
-    kept.reserve(subsample.size());
-    for (const MovingPoint& m : subsample) {
-      if (m.keyframe != static_cast<int>(kf)) kept.push_back(m);
-    }
-    add(solve(kept, frames, k, start, o), &moving);
+    if (full.moving_matches[kf] >= kMinMatches) jobs.emplace_back(true, kf);
   }
   for (std::size_t kf = 0; kf < full.fixed_matches.size(); ++kf) {
-    if (full.fixed_matches[kf] < kMinMatches) continue;
-    std::vector<FixedKeyframe> kept;
-    for (std::size_t i = 0; i < frames.size(); ++i) {
-      if (i != kf) kept.push_back(frames[i]);
-    }
-    add(solve(subsample, kept, k, start, o), &fixed);
+    if (full.fixed_matches[kf] >= kMinMatches) jobs.emplace_back(false, kf);
   }
+  std::vector<Direction> results(jobs.size());
+#pragma omp parallel for schedule(dynamic)
+  for (std::size_t job = 0; job < jobs.size(); ++job) {
+    const auto [is_moving, kf] = jobs[job];
+    if (is_moving) {
+      std::vector<MovingPoint> kept;
+      kept.reserve(subsample.size());
+      for (const MovingPoint& m : subsample) {
+        if (m.keyframe != static_cast<int>(kf)) kept.push_back(m);
+      }
+      results[job] = solve(kept, frames, k, start, o);
+    } else {
+      std::vector<FixedKeyframe> kept;
+      for (std::size_t i = 0; i < frames.size(); ++i) {
+        if (i != kf) kept.push_back(frames[i]);
+      }
+      results[job] = solve(subsample, kept, k, start, o);
+    }
+  }
+  std::vector<Vector7d> moving, fixed;
+  for (std::size_t job = 0; job < jobs.size(); ++job) add(results[job], jobs[job].first ? &moving : &fixed);
   out.moving = static_cast<int>(moving.size());
   out.fixed = static_cast<int>(fixed.size());
   if (out.moving < 2 || out.fixed < 2) return out;
@@ -637,8 +652,15 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
                                    target_frames = fixedKeyframes(target, options);
   const std::vector<MovingPoint> source_points = movingPoints(source, source_frames, options),
                                  target_points = movingPoints(target, target_frames, options);
-  const Direction forward = solve(source_points, target_frames, target.camera, initial, options);
-  Direction backward = solve(target_points, source_frames, source.camera, initial.inverse(), options);
+  // The two directions side by side, each on one thread (as the jackknife's leave-outs).
+  Direction forward, backward;
+#pragma omp parallel sections
+  {
+#pragma omp section
+    forward = solve(source_points, target_frames, target.camera, initial, options);
+#pragma omp section
+    backward = solve(target_points, source_frames, source.camera, initial.inverse(), options);
+  }
   // The backward direction's own estimate B (source -> target is B⁻¹), kept for its jackknife.
   const Sim3 backward_own = backward.estimate;
   if (backward.ok) {
