@@ -117,8 +117,9 @@ struct ProjectiveOptions {
   /// What the subsample adds is its own noise in each leave-out, which on the whole widens the
   /// spread. Measured (make bench sections, README, Troubleshooting): 2 kept the covariance's
   /// calibration and 4 made it too wide on the simulated worlds; on the real LSD-SLAM bags the merge with
-  /// merge.projective_refinement took 9.6 s with 2 and 6.6-8.6 s with 4, against 11.5-12.7 s with 1.
-  /// The subsample leaves the estimate as it is.
+  /// merge.projective_refinement took 9.6 s with 2 and 6.6-8.6 s with 4, against 11.5-12.7 s with 1
+  /// (before the leave-outs ran side by side, which brought 1 to 10.0-10.1 s). The subsample leaves
+  /// the estimate as it is.
   int jackknife_point_step = 1;
   /// The covariance also adds the difference δ between the two directions' estimates as a spread
   /// δδᵀ (without its cross terms, as the jackknife's). The moving points' own depth noise biases
