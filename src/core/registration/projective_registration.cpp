@@ -7,7 +7,6 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
-#include <map>
 #include <utility>
 #include <vector>
 
@@ -411,14 +410,20 @@ std::vector<PhotometricRow> photometricRowsAt(const Sim3& s, const std::vector<M
 // residuals'. @return that noise [grey levels], 0 when there are too few rows (fewer than kMinMatches)
 double photometricEquations(std::vector<PhotometricRow>* rows, double width, Matrix7d* h, Vector7d* g) {
   if (static_cast<int>(rows->size()) < kMinMatches) return 0.0;
-  std::map<int, std::vector<double>> per_pair;
-  for (const PhotometricRow& row : *rows) per_pair[row.pair].push_back(row.r);
-  std::map<int, double> offset;
-  for (auto& [pair, values] : per_pair) offset[pair] = upperMedian(&values);
+  // Per pair of keyframes, indexed by PhotometricRow::pair (a dense index), each pair's differences
+  // in the rows' order.
+  int pairs = 0;
+  for (const PhotometricRow& row : *rows) pairs = std::max(pairs, row.pair + 1);
+  std::vector<std::vector<double>> per_pair(static_cast<std::size_t>(pairs));
+  for (const PhotometricRow& row : *rows) per_pair[static_cast<std::size_t>(row.pair)].push_back(row.r);
+  std::vector<double> offset(per_pair.size(), 0.0);
+  for (std::size_t pair = 0; pair < per_pair.size(); ++pair) {
+    if (!per_pair[pair].empty()) offset[pair] = upperMedian(&per_pair[pair]);
+  }
   std::vector<double> absolute;
   absolute.reserve(rows->size());
   for (PhotometricRow& row : *rows) {
-    row.r -= offset[row.pair];
+    row.r -= offset[static_cast<std::size_t>(row.pair)];
     absolute.push_back(std::abs(row.r));
   }
   const double sigma = std::max(kMinIntensityStddev, 1.4826 * upperMedian(&absolute));
@@ -544,24 +549,22 @@ struct Jackknife {
 Jackknife jackknifeKeyframes(const std::vector<MovingPoint>& points, const std::vector<FixedKeyframe>& frames,
                              const PinholeCamera& k, const Direction& full, const ProjectiveOptions& o) {
   Jackknife out;
-  // Every n-th moving point (ProjectiveOptions::jackknife_point_step), the same in every leave-out.
-  const std::size_t step = static_cast<std::size_t>(o.jackknife_point_step);
-  std::vector<MovingPoint> every_nth;
-  if (step > 1) {
-    every_nth.reserve(points.size() / step + 1);
-    for (std::size_t i = 0; i < points.size(); i += step) every_nth.push_back(points[i]);
-  }
-  const std::vector<MovingPoint>& subsample = step > 1 ? every_nth : points;
-  // The subsample's own estimate with every keyframe: the leave-outs start there, near their own
+  // Every n-th moving point (ProjectiveOptions::jackknife_point_step), the same in every leave-out,
+  // and the subsample's own estimate with every keyframe: the leave-outs start there, near their own
   // estimates. A subsample moves the estimate by far more than the Gauss-Newton covariance says: on
   // the real LSD-SLAM maps (1-in-4, 2026-12-06) the leave-outs started from the full estimate ended
   // 0.09-0.74 deg from it, against a Gauss-Newton 1-sigma of 0.006 deg, and took 1.8 times the
   // iterations of those started here.
+  const std::size_t step = static_cast<std::size_t>(o.jackknife_point_step);
+  std::vector<MovingPoint> every_nth;
   Sim3 start = full.estimate;
   if (step > 1) {
-    const Direction base = solve(subsample, frames, k, full.estimate, o);
+    every_nth.reserve(points.size() / step + 1);
+    for (std::size_t i = 0; i < points.size(); i += step) every_nth.push_back(points[i]);
+    const Direction base = solve(every_nth, frames, k, full.estimate, o);
     if (base.ok) start = base.estimate;
   }
+  const std::vector<MovingPoint>& subsample = step > 1 ? every_nth : points;
   const auto add = [&](const Direction& r, std::vector<Vector7d>* deltas) {
     const Vector7d d = similarityDifference(r.estimate, start);
     if (!r.ok || !d.allFinite()) return;  // no estimate without that keyframe: not counted
