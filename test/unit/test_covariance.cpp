@@ -2,9 +2,11 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
+#include <Eigen/QR>
 
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <random>
 
 #include "pcr_pro/registration/covariance.h"
@@ -431,6 +433,42 @@ TEST(Covariance, AnInvertedDegenerateResultKeepsItsUnobservableDirection) {
   const Eigen::Matrix<double, 6, 1> moved = similarityAdjoint(forward).topLeftCorner<6, 6>() * e;
   EXPECT_NEAR(moved.dot(res.information * moved), 0.0, 1e-9 * res.information.norm());
   EXPECT_GT(res.information.norm(), 0.0);
+}
+
+// The information reported with a covariance that is not positive definite (a DEGENERATE merge
+// that keeps the keyframe estimate): the inverse where the covariance is positive, nothing claimed
+// along a zero or negative variance, nothing at all when it is not finite.
+TEST(Covariance, PositivePartInformationClaimsNothingWhereTheCovarianceIsNotPositive) {
+  std::mt19937 rng(7);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Matrix6d a;
+  for (int i = 0; i < 36; ++i) a(i / 6, i % 6) = g(rng);
+  const Eigen::HouseholderQR<Matrix6d> qr(a);
+  const Matrix6d q = qr.householderQ();
+  // Mixed units, as a pose covariance has them: [m^2] and [rad^2].
+  Eigen::Matrix<double, 6, 1> variances;
+  variances << 4e-4, 1e-3, 2.5e-5, 1e-6, 3e-6, 5e-7;
+  const Matrix6d pd = q * variances.asDiagonal() * q.transpose();
+  const Matrix6d info = positivePartInformation(pd);
+  EXPECT_LT((info * pd - Matrix6d::Identity()).norm(), 1e-8) << "a positive definite covariance is inverted";
+
+  Eigen::Matrix<double, 6, 1> broken = variances;
+  broken(1) = 0.0;    // no variance claimed
+  broken(4) = -2e-6;  // not a variance
+  const Matrix6d c = q * broken.asDiagonal() * q.transpose();
+  const Matrix6d ic = positivePartInformation(c);
+  ASSERT_TRUE(ic.allFinite());
+  EXPECT_LT((ic - ic.transpose()).norm(), 1e-9 * ic.norm());
+  for (int k : {1, 4}) {
+    EXPECT_LT((ic * q.col(k)).norm(), 1e-6 * ic.norm()) << "information along direction " << k;
+  }
+  for (int k : {0, 2, 3, 5}) {
+    EXPECT_NEAR(q.col(k).dot(ic * q.col(k)), 1.0 / variances(k), 1e-6 / variances(k)) << "direction " << k;
+  }
+  Matrix6d not_finite = pd;
+  not_finite(2, 3) = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(positivePartInformation(not_finite), Matrix6d::Zero());
+  EXPECT_EQ(positivePartInformation(Matrix6d::Zero()), Matrix6d::Zero());
 }
 
 }  // namespace

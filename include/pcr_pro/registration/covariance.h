@@ -174,6 +174,15 @@ void invertCovarianceResult(const Sim3& forward, CovarianceResult* result);
 Matrix7d logScaleCovariance(const CovarianceResult& result, double scale);
 
 /**
+ * @brief The information of a pose covariance that need not be positive definite: its inverse
+ * along the eigen-directions where it is positive (an eigenvalue above 1e-14 of the largest, the
+ * pose-graph export's test), zero along the rest. No information is then claimed where the
+ * covariance gives none (a zero or negative variance is not a measurement of certainty).
+ * @return the symmetric information; zero when the covariance is not finite
+ */
+Matrix6d positivePartInformation(const Matrix6d& covariance);
+
+/**
  * @brief Closed-form covariance of an ICP result.
  * @param[in] matches final correspondences (source points in the source frame)
  * @param[in] transform converged S_target_source

@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include "pcr_pro/registration/covariance.h"
 #include "pcr_pro/registration/scale_detection.h"
 
 namespace pcr_pro {
@@ -473,11 +474,18 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   Matrix6d cov, info;
   const bool finite = poseCovariance(verdict.covariance, &cov, &info);
   if (verdict.status == Status::kDegenerate || !finite) {
-    // Unobservable directions: the closed form's information is zero along them.
-    rep.covariance = cov.allFinite() ? cov : refinement.closed_form.covariance;
-    rep.information = refinement.closed_form.information;
-    // (A projective refinement has no closed form: its information is then zero, with no message.)
-    const std::string& closed = refinement.closed_form.message;
+    // Unobservable directions. The ICP's closed form has zero information along them, but it
+    // stands for the refined estimate only. For the keyframe estimate, and for a projective
+    // refinement (which has no closed form), the information is the reported covariance's own,
+    // zero where that is not positive: what is reported then holds together.
+    const bool closed_form = verdict.refinement_kept && !refinement.projective;
+    if (cov.allFinite()) {
+      rep.covariance = cov;
+    } else if (closed_form) {
+      rep.covariance = refinement.closed_form.covariance;
+    }
+    rep.information = closed_form ? refinement.closed_form.information : positivePartInformation(cov);
+    const std::string closed = closed_form ? refinement.closed_form.message : std::string();
     return finish(Status::kDegenerate, finite ? verdict.message
                                               : "the covariance is not positive definite" +
                                                     (closed.empty() ? std::string() : "; " + closed));

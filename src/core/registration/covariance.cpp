@@ -278,6 +278,18 @@ Matrix7d logScaleCovariance(const CovarianceResult& c, double scale) {
   return out;
 }
 
+Matrix6d positivePartInformation(const Matrix6d& covariance) {
+  Matrix6d info = Matrix6d::Zero();
+  if (!covariance.allFinite()) return info;
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> eig(0.5 * (covariance + covariance.transpose()));
+  const double largest = eig.eigenvalues().cwiseAbs().maxCoeff();
+  for (int i = 0; i < 6; ++i) {
+    const double l = eig.eigenvalues()(i);
+    if (l > 1e-14 * largest) info += eig.eigenvectors().col(i) * eig.eigenvectors().col(i).transpose() / l;
+  }
+  return 0.5 * (info + info.transpose());
+}
+
 BlockSpread blockSpreadCovariance(const Correspondences& m, const Sim3& transform, ErrorMetric metric,
                                   bool with_scale, const std::vector<PointMatch3>* anchors) {
   BlockSpread out;
