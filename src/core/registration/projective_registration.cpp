@@ -284,28 +284,24 @@ struct Direction {
 // several, which lowers its residual: rho is then, if anything, too small, never raised by the
 // selection. @return rho^2
 double depthDisagreement(std::vector<Match>* matches, double previous_rho2) {
-  std::vector<double> q(matches->size());
-  const auto median_at = [&](double rho2) {
-    for (std::size_t i = 0; i < matches->size(); ++i) {
-      const Match& m = (*matches)[i];
-      q[i] = m.r(0) * m.r(0) / covarianceAt(m, rho2)(0, 0);
-    }
-    return upperMedian(&q);
-  };
-  double rho2 = 0.0;
-  if (median_at(0.0) > kMedianChi2Of1) {
-    // The median falls as rho grows: bisection on log(rho^2), to 0.1 % in rho^2.
-    double lo = 1e-12, hi = kMaxDepthDisagreement * kMaxDepthDisagreement;
-    while (hi > lo * 1.001) {
-      const double mid = std::sqrt(lo * hi);
-      (median_at(mid) > kMedianChi2Of1 ? lo : hi) = mid;
-    }
-    rho2 = hi;
+  // No search: a match's r_d^2 / (v + rho^2 z0^2) is at most the chi-square's median c exactly when
+  // rho^2 >= t = (r_d^2 / c - v) / z0^2, so as many of them are at most c as there are t at most
+  // rho^2, and the ratios' upper median is at most c from the t's upper median on. That t is the
+  // smallest rho^2, exactly and in one partial sort (a bisection to 0.1 % took about 16).
+  // Both loops are per match, so they give the same result on any number of threads.
+  std::vector<double> t(matches->size());
+#pragma omp parallel for schedule(static)
+  for (std::size_t i = 0; i < matches->size(); ++i) {
+    const Match& m = (*matches)[i];
+    const double excess = m.r(0) * m.r(0) / kMedianChi2Of1 - covarianceAt(m, 0.0)(0, 0);
+    t[i] = m.fixed_depth2 > 0.0 ? excess / m.fixed_depth2
+                                : (excess > 0.0 ? std::numeric_limits<double>::infinity() : 0.0);
   }
+  const double smallest = upperMedian(&t);
+  const double rho2 = smallest > 0.0 ? std::min(smallest, kMaxDepthDisagreement * kMaxDepthDisagreement) : 0.0;
   if (rho2 == previous_rho2) return rho2;
-  for (Match& m : *matches) {
-    setNoise(rho2, &m);
-  }
+#pragma omp parallel for schedule(static)
+  for (std::size_t i = 0; i < matches->size(); ++i) setNoise(rho2, &(*matches)[i]);
   return rho2;
 }
 
