@@ -412,10 +412,8 @@ double photometricEquations(std::vector<PhotometricRow>* rows, double width, Mat
   for (const PhotometricRow& row : *rows) pairs = std::max(pairs, row.pair + 1);
   std::vector<std::vector<double>> per_pair(static_cast<std::size_t>(pairs));
   for (const PhotometricRow& row : *rows) per_pair[static_cast<std::size_t>(row.pair)].push_back(row.r);
-  std::vector<double> offset(per_pair.size(), 0.0);
-  for (std::size_t pair = 0; pair < per_pair.size(); ++pair) {
-    if (!per_pair[pair].empty()) offset[pair] = upperMedian(&per_pair[pair]);
-  }
+  std::vector<double> offset(per_pair.size());
+  for (std::size_t pair = 0; pair < per_pair.size(); ++pair) offset[pair] = upperMedian(&per_pair[pair]);
   std::vector<double> absolute;
   absolute.reserve(rows->size());
   for (PhotometricRow& row : *rows) {
