@@ -471,5 +471,49 @@ TEST(Covariance, PositivePartInformationClaimsNothingWhereTheCovarianceIsNotPosi
   EXPECT_EQ(positivePartInformation(Matrix6d::Zero()), Matrix6d::Zero());
 }
 
+// A DEGENERATE merge whose kept estimate is the ICP's reported the ICP closed form's information
+// beside a covariance the gates had widened: more confident than that covariance. Its information
+// is now the reported covariance's own; the closed form only stands in when there is no finite
+// covariance.
+TEST(Covariance, DegenerateUncertaintyReportsTheInformationOfTheCovarianceItReports) {
+  std::mt19937 rng(11);
+  std::normal_distribution<double> g(0.0, 1.0);
+  Matrix6d a;
+  for (int i = 0; i < 36; ++i) a(i / 6, i % 6) = g(rng);
+  const Matrix6d q = Eigen::HouseholderQR<Matrix6d>(a).householderQ();
+  Eigen::Matrix<double, 6, 1> variances;
+  variances << 4e-4, 1e-3, 2.5e-5, 1e-6, 3e-6, 5e-7;
+  Eigen::Matrix<double, 6, 1> widened = 9.0 * variances;  // the merge's covariance, widened by the gates
+  widened(2) = -1e-6;                                     // and not positive along one direction
+  const Matrix6d merged = q * widened.asDiagonal() * q.transpose();
+  CovarianceResult icp;  // the ICP's own closed form: positive definite and tighter
+  icp.covariance = q * variances.asDiagonal() * q.transpose();
+  icp.information = q * variances.cwiseInverse().asDiagonal() * q.transpose();
+
+  const ReportedUncertainty kept_icp = degenerateUncertainty(merged, &icp);
+  ASSERT_TRUE(kept_icp.covariance.has_value());
+  EXPECT_EQ(*kept_icp.covariance, merged);
+  for (int k = 0; k < 6; ++k) {
+    const double claimed = q.col(k).dot(kept_icp.information * q.col(k));
+    if (k == 2) {
+      EXPECT_LT(std::abs(claimed), 1e-6 / variances(k)) << "no information where the covariance is not positive";
+    } else {
+      EXPECT_NEAR(claimed, 1.0 / widened(k), 1e-6 / widened(k)) << "direction " << k << ": the reported covariance's";
+    }
+  }
+  const ReportedUncertainty kept_keyframes = degenerateUncertainty(merged, nullptr);
+  EXPECT_EQ(kept_keyframes.information, kept_icp.information);
+
+  Matrix6d not_finite = merged;
+  not_finite(0, 5) = std::numeric_limits<double>::infinity();
+  const ReportedUncertainty fallback = degenerateUncertainty(not_finite, &icp);
+  ASSERT_TRUE(fallback.covariance.has_value());
+  EXPECT_EQ(*fallback.covariance, icp.covariance) << "the ICP's own pair when the merge's is not finite";
+  EXPECT_EQ(fallback.information, icp.information);
+  const ReportedUncertainty nothing = degenerateUncertainty(not_finite, nullptr);
+  EXPECT_FALSE(nothing.covariance.has_value());
+  EXPECT_EQ(nothing.information, Matrix6d::Zero());
+}
+
 }  // namespace
 }  // namespace pcr_pro

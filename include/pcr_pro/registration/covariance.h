@@ -38,6 +38,7 @@
  */
 #pragma once
 
+#include <optional>
 #include <string>
 
 #include "pcr_pro/registration/icp.h"
@@ -181,6 +182,25 @@ Matrix7d logScaleCovariance(const CovarianceResult& result, double scale);
  * @return the symmetric information; zero when the covariance is not finite
  */
 Matrix6d positivePartInformation(const Matrix6d& covariance);
+
+/// The pose covariance and information a result reports (either may be absent or zero).
+struct ReportedUncertainty {
+  std::optional<Matrix6d> covariance;        ///< absent when there is no finite one to report
+  Matrix6d information = Matrix6d::Zero();
+};
+
+/**
+ * @brief What a merge reports when its pose covariance is not positive definite (DEGENERATE): the
+ * covariance itself when finite, with positivePartInformation() of it, so that the two hold
+ * together. That holds when the estimate kept is the ICP's too: its closed form's information is
+ * the ICP's alone, before the merge widened the covariance, and would claim more than the
+ * covariance reported beside it. Only a covariance that is not finite falls back on the closed
+ * form's covariance and information, when the ICP's estimate is kept; otherwise nothing is claimed.
+ * @param[in] covariance the merge's 6x6 pose covariance, finite or not
+ * @param[in] icp_closed_form the kept ICP refinement's closed form; nullptr when the estimate kept
+ *   is not the ICP's (the keyframe estimate, a projective refinement)
+ */
+ReportedUncertainty degenerateUncertainty(const Matrix6d& covariance, const CovarianceResult* icp_closed_form);
 
 /**
  * @brief Closed-form covariance of an ICP result.

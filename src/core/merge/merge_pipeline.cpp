@@ -474,17 +474,11 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   Matrix6d cov, info;
   const bool finite = poseCovariance(verdict.covariance, &cov, &info);
   if (verdict.status == Status::kDegenerate || !finite) {
-    // Unobservable directions. The ICP's closed form has zero information along them, but it
-    // stands for the refined estimate only. For the keyframe estimate, and for a projective
-    // refinement (which has no closed form), the information is the reported covariance's own,
-    // zero where that is not positive: what is reported then holds together.
+    // Unobservable directions: the covariance's own information (degenerateUncertainty()).
     const bool closed_form = verdict.refinement_kept && !refinement.projective;
-    if (cov.allFinite()) {
-      rep.covariance = cov;
-    } else if (closed_form) {
-      rep.covariance = refinement.closed_form.covariance;
-    }
-    rep.information = closed_form ? refinement.closed_form.information : positivePartInformation(cov);
+    const ReportedUncertainty u = degenerateUncertainty(cov, closed_form ? &refinement.closed_form : nullptr);
+    rep.covariance = u.covariance;
+    rep.information = u.information;
     const std::string closed = closed_form ? refinement.closed_form.message : std::string();
     return finish(Status::kDegenerate, finite ? verdict.message
                                               : "the covariance is not positive definite" +

@@ -290,6 +290,18 @@ Matrix6d positivePartInformation(const Matrix6d& covariance) {
   return 0.5 * (info + info.transpose());
 }
 
+ReportedUncertainty degenerateUncertainty(const Matrix6d& covariance, const CovarianceResult* icp_closed_form) {
+  ReportedUncertainty out;
+  if (covariance.allFinite() || icp_closed_form == nullptr) {
+    if (covariance.allFinite()) out.covariance = covariance;
+    out.information = positivePartInformation(covariance);
+  } else {
+    out.covariance = icp_closed_form->covariance;
+    out.information = icp_closed_form->information;
+  }
+  return out;
+}
+
 BlockSpread blockSpreadCovariance(const Correspondences& m, const Sim3& transform, ErrorMetric metric,
                                   bool with_scale, const std::vector<PointMatch3>* anchors) {
   BlockSpread out;
