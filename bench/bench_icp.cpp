@@ -42,6 +42,25 @@ double medianMs(int repeats, const std::function<void()>& f) {
   return t[t.size() / 2];
 }
 
+// Wall time of one empty OpenMP parallel region of one thread with a reduction loop [us]: what
+// FLANN's knnSearch (inside PCL 1.13's KdTreeFLANN) opens for every nearest-neighbour query PCL's
+// ICP makes, with num_threads(1) (SearchParams::cores). libgomp's barrier makes a futex system call
+// even for a team of one, so this costs what a system call costs on the machine.
+double oneThreadRegionUs() {
+  constexpr int kRegions = 200000;
+  long sink = 0;
+  const double t0 = nowMs();
+  for (int i = 0; i < kRegions; ++i) {
+#pragma omp parallel num_threads(1)
+    {
+#pragma omp for schedule(static) reduction(+ : sink)
+      for (int j = 0; j < 1; ++j) sink += i + j;
+    }
+  }
+  const double us = (nowMs() - t0) * 1000.0 / kRegions;
+  return sink == -1 ? 0.0 : us;  // sink read so the loop stays
+}
+
 struct Accuracy {
   double rot_deg, trans;
 };
@@ -178,6 +197,17 @@ void runCase(const Case& k, int repeats) {
     std::printf("| %s | %.1f | %.2f | %d | %.3f | %.4f | %.2f |\n", r.name.c_str(), r.ms, t_pcl / r.ms, r.iters,
                 r.acc.rot_deg, r.acc.trans, r.cov_ms);
   }
+  // PCL's per-query overhead on this machine, so that the speed-up can be read apart from it.
+  const double region_us = oneThreadRegionUs();
+  const double queries = static_cast<double>(pcl_iters) * static_cast<double>(src_pcl->size());
+  const double overhead_ms = queries * region_us / 1000.0;
+  std::printf("\nPCL's KdTreeFLANN runs each of its %.0f nearest-neighbour queries (%d iterations x %zu source "
+              "points) inside a one-thread OpenMP region (FLANN's knnSearch), which costs %.2f us here when empty "
+              "(libgomp's barrier makes a system call even for one thread; their cost depends on the machine): "
+              "about %.0f ms of PCL's %.0f ms. PCL less that overhead, %.0f ms, is %.2f times our point-to-point "
+              "row on one thread.\n",
+              queries, pcl_iters, src_pcl->size(), region_us, overhead_ms, t_pcl, t_pcl - overhead_ms,
+              rows.empty() ? 0.0 : (t_pcl - overhead_ms) / rows.front().ms);
 }
 
 void covarianceScaling(int repeats) {
