@@ -207,7 +207,7 @@ void runCase(const Case& k, int repeats) {
               "about %.0f ms of PCL's %.0f ms. PCL less that overhead, %.0f ms, is %.2f times our point-to-point "
               "row on one thread.\n",
               queries, pcl_iters, src_pcl->size(), region_us, overhead_ms, t_pcl, t_pcl - overhead_ms,
-              rows.empty() ? 0.0 : (t_pcl - overhead_ms) / rows.front().ms);
+              (t_pcl - overhead_ms) / rows.front().ms);  // rows.front(): point-to-point, 1 thread
 }
 
 void covarianceScaling(int repeats) {

@@ -438,13 +438,17 @@ TEST(Covariance, AnInvertedDegenerateResultKeepsItsUnobservableDirection) {
 // The information reported with a covariance that is not positive definite (a DEGENERATE merge
 // that keeps the keyframe estimate): the inverse where the covariance is positive, nothing claimed
 // along a zero or negative variance, nothing at all when it is not finite.
-TEST(Covariance, PositivePartInformationClaimsNothingWhereTheCovarianceIsNotPositive) {
-  std::mt19937 rng(7);
+// A random orthonormal 6x6 basis: the eigen-directions of a test covariance.
+Matrix6d randomRotation6(unsigned seed) {
+  std::mt19937 rng(seed);
   std::normal_distribution<double> g(0.0, 1.0);
   Matrix6d a;
   for (int i = 0; i < 36; ++i) a(i / 6, i % 6) = g(rng);
-  const Eigen::HouseholderQR<Matrix6d> qr(a);
-  const Matrix6d q = qr.householderQ();
+  return Eigen::HouseholderQR<Matrix6d>(a).householderQ();
+}
+
+TEST(Covariance, PositivePartInformationClaimsNothingWhereTheCovarianceIsNotPositive) {
+  const Matrix6d q = randomRotation6(7);
   // Mixed units, as a pose covariance has them: [m^2] and [rad^2].
   Eigen::Matrix<double, 6, 1> variances;
   variances << 4e-4, 1e-3, 2.5e-5, 1e-6, 3e-6, 5e-7;
@@ -476,11 +480,7 @@ TEST(Covariance, PositivePartInformationClaimsNothingWhereTheCovarianceIsNotPosi
 // is now the reported covariance's own; the closed form only stands in when there is no finite
 // covariance.
 TEST(Covariance, DegenerateUncertaintyReportsTheInformationOfTheCovarianceItReports) {
-  std::mt19937 rng(11);
-  std::normal_distribution<double> g(0.0, 1.0);
-  Matrix6d a;
-  for (int i = 0; i < 36; ++i) a(i / 6, i % 6) = g(rng);
-  const Matrix6d q = Eigen::HouseholderQR<Matrix6d>(a).householderQ();
+  const Matrix6d q = randomRotation6(11);
   Eigen::Matrix<double, 6, 1> variances;
   variances << 4e-4, 1e-3, 2.5e-5, 1e-6, 3e-6, 5e-7;
   Eigen::Matrix<double, 6, 1> widened = 9.0 * variances;  // the merge's covariance, widened by the gates

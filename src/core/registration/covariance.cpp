@@ -291,14 +291,11 @@ Matrix6d positivePartInformation(const Matrix6d& covariance) {
 }
 
 ReportedUncertainty degenerateUncertainty(const Matrix6d& covariance, const CovarianceResult* icp_closed_form) {
+  const bool finite = covariance.allFinite();
+  if (!finite && icp_closed_form != nullptr) return {icp_closed_form->covariance, icp_closed_form->information};
   ReportedUncertainty out;
-  if (covariance.allFinite() || icp_closed_form == nullptr) {
-    if (covariance.allFinite()) out.covariance = covariance;
-    out.information = positivePartInformation(covariance);
-  } else {
-    out.covariance = icp_closed_form->covariance;
-    out.information = icp_closed_form->information;
-  }
+  if (finite) out.covariance = covariance;
+  out.information = positivePartInformation(covariance);  // zero when not finite
   return out;
 }
 
