@@ -1380,7 +1380,7 @@ TEST(MergeGates, ARefinementBeyondTheCorrectionLimitsMustBeSupportedByTheClouds)
 // - An honest refinement: the combination costs accuracy, since a chi-square beyond its mean of
 //   7 (four draws in ten) is put on the refinement although chance made it (measured: RMS 3.0
 //   times the refinement's, a third of the keyframe estimate's). That is the price of the
-//   option (README, Configuration, for what it does on the bench's merges); off, the
+//   option (docs/DESIGN.md, for what it does on the bench's merges); off, the
 //   refinement is reported as it is.
 // The reported covariance (the refinement's, raised by the disagreement) covers the reported
 // estimate: honest, 97 % of the draws under the 7-DoF chi-square 95 % bound, as without the

@@ -46,7 +46,7 @@ struct MergeGateOptions {
   /// before (their changes lie within the 7-Scenes truth's own accuracy). Off: the refined
   /// estimate is reported as it is (depth-camera clouds, where the keyframe pairs are the worse
   /// evidence: on 7-Scenes the mean scale error of the 18 merges was 0.46 % without and 0.62 %
-  /// with, against a truth good to about 2.7 % in scale; README, Configuration).
+  /// with, against a truth good to about 2.7 % in scale; docs/DESIGN.md).
   bool combine_with_keyframe_estimate = true;
   /// When no keyframe ids are given and there are more keyframe pairs than this, only this many
   /// pairs, those with the most descriptor votes (keyframePairVotes()), get the full matching
@@ -90,7 +90,7 @@ struct MergeGateOptions {
   /// keyframes with matches, with projective.jackknife on: its covariance would then hold no
   /// keyframe's error), or the maps carry no depth uncertainty, the ICP refinement is used, and the
   /// message says why. Off by default for its cost: each keyframe with matches costs one more
-  /// registration for the jackknife (README, Configuration: measured on the bench's worlds and on
+  /// registration for the jackknife (docs/DESIGN.md: measured on the bench's worlds and on
   /// the real LSD-SLAM bags).
   bool projective_refinement = false;
 };

@@ -84,7 +84,7 @@ struct CovarianceOptions {
   /// noise, the weak directions of a low overlap): on the bench's 24 simulated worlds (15-60 %
   /// overlap, 0-5 % drift, inverse-depth noise 0.01-0.03), the refinement alone started at the
   /// truth had a 6-DoF ANEES of 49 with the blocks model and 1.75 with 8 jackknife blocks (46 and
-  /// 1.66 on 44 held-out worlds). Off by default: it costs that many more ICP runs (README, What
+  /// 1.66 on 44 held-out worlds). Off by default: it costs that many more ICP runs (docs/DESIGN.md, What
   /// the covariance covers).
   int jackknife_blocks = 0;
 };

@@ -24,16 +24,16 @@
  * Why the likeliest pixel and not the nearest: semi-dense depth lies on image edges, which are
  * often depth edges, so the nearest pixel with depth is often on the other surface. Matched that
  * way, the estimate ran away on real LSD-SLAM keyframes: every step lowered the cost of its own
- * matches and the next matching raised it more (README, Troubleshooting).
+ * matches and the next matching raised it more (docs/DESIGN.md).
  *
  * Why: a semi-dense point's depth error runs along its view ray, often farther than the point
  * spacing, so nearest neighbours in 3D are not correspondences and planes fitted to them lie in
- * the noise (README, Troubleshooting). A pixel's position across an image edge is precise; its
+ * the noise (docs/DESIGN.md). A pixel's position across an image edge is precise; its
  * depth is not, and is weighed as such.
  *
  * The two directions (the source's points into the target's keyframes, and the target's into the
  * source's, inverted) are not equally good: the moving points' own ray noise biases the estimate,
- * by how much depends on the geometry of the two maps' views (README). Both are run; the one whose
+ * by how much depends on the geometry of the two maps' views (docs/DESIGN.md). Both are run; the one whose
  * whitened residuals fit their noise model better (the smaller median squared Mahalanobis length)
  * is returned.
  *
@@ -42,7 +42,7 @@
  * out in turn (a delete-one-keyframe jackknife per map, ProjectiveOptions::jackknife), and the two
  * directions' difference (direction_spread), which holds the moving points' shared noise bias.
  * Under the Gauss-Newton covariance alone the bench's worlds gave an ANEES of 150-1,300; with both
- * spreads, 0.7-1.5 in rotation and 6 DoF and 0.42 in scale (README, Troubleshooting).
+ * spreads, 0.7-1.5 in rotation and 6 DoF and 0.42 in scale (docs/DESIGN.md).
  */
 #pragma once
 
@@ -75,7 +75,7 @@ struct ProjectiveOptions {
   /// Gauss-Newton iterations at most [-], >= 1; a direction still moving then is not converged
   /// (ICP_NOT_CONVERGED). The matches are re-made every iteration, and the estimate creeps to its
   /// fixed point with slowly shrinking steps in one direction: from the truth, 18 of the bench's
-  /// worlds needed 5-42 iterations without extrapolation and 5-43 with it (README, Troubleshooting).
+  /// worlds needed 5-42 iterations without extrapolation and 5-43 with it (docs/DESIGN.md).
   int max_iterations = 60;
   /// Cauchy kernel width in robust spreads of the whitened residuals [-], > 0.
   double kernel_width = 2.385;
@@ -88,25 +88,25 @@ struct ProjectiveOptions {
   /// depth variance gains (rho z)^2, rho the smallest value for which the median squared whitened
   /// depth residual is a chi-square's with 1 DoF (0.455). rho is 0 where the depth residuals fit
   /// their per-pixel variance. Off: the per-pixel variance alone, under which two real LSD-SLAM maps
-  /// slid 21-165 deg away (README, Troubleshooting).
+  /// slid 21-165 deg away (docs/DESIGN.md).
   bool depth_disagreement = true;
   /// Also compare each moving point's grey level with each fixed keyframe's image where it projects
   /// (bilinear, the image's gradient as Jacobian), with a brightness offset per keyframe pair and
   /// the noise measured from the differences every iteration. It needs no pixel with depth near the
   /// projection: on the real LSD-SLAM maps the depth and edge residuals alone let the estimate slide
-  /// on, and with this it converges (README, Troubleshooting).
+  /// on, and with this it converges (docs/DESIGN.md).
   bool photometric = true;
   /// The images are smoothed by a Gaussian of this standard deviation before their grey levels and
   /// gradients are compared [px], >= 0: the gradient then reaches about that far beyond an edge. 1 px
   /// keeps the edges' own width (semi-dense depth lies on edges 1-2 px wide). Probes with 2 px: on
   /// the real maps 1.25 deg from the overlap truth instead of 1.33, on the bench's simulated worlds a
-  /// median rotation error from the truth of 0.36 deg instead of 0.30 (README, Troubleshooting).
+  /// median rotation error from the truth of 0.36 deg instead of 0.30 (docs/DESIGN.md).
   double photometric_blur_px = 1.0;
   /// The covariance adds the estimate's spread between re-runs that each leave out one keyframe (a
   /// delete-one-keyframe jackknife in the kept direction, one for each map's keyframes, summed): what
   /// a monocular map gets wrong keyframe by keyframe (its depth's scale, its pose's drift) is not
   /// per-pixel noise, and under the Gauss-Newton covariance alone the bench's worlds gave an ANEES
-  /// of 150-1,300 (README, Troubleshooting). Each map needs two keyframes with matches or more;
+  /// of 150-1,300 (docs/DESIGN.md). Each map needs two keyframes with matches or more;
   /// otherwise the covariance holds no keyframe's error and ProjectiveResult::jackknifed is false.
   /// Costs one registration of one direction per keyframe with matches.
   bool jackknife = true;
@@ -115,7 +115,7 @@ struct ProjectiveOptions {
   /// estimate with every keyframe (one more registration), the same subsample in each, so the shift
   /// it makes is common to all and the spread, taken about the leave-outs' mean, does not hold it.
   /// What the subsample adds is its own noise in each leave-out, which on the whole widens the
-  /// spread. Measured (make bench sections, README, Troubleshooting): 2 kept the covariance's
+  /// spread. Measured (make bench sections, docs/DESIGN.md): 2 kept the covariance's
   /// calibration and 4 made it too wide on the simulated worlds; on the real LSD-SLAM bags the merge with
   /// merge.projective_refinement took 9.6 s with 2 and 6.6-8.6 s with 4, against 11.5-12.7 s with 1
   /// (before the leave-outs ran side by side, which brought 1 to 10.0-10.1 s). The subsample leaves

@@ -118,7 +118,7 @@ std::string refinementDisagreement(const KeyframeEstimate& keyframes, const Refi
 // instead of 143, unequal noise 102 of 108 instead of 99, real 7 of 27 as before. The price: an
 // honest refinement much tighter than the keyframe estimate is weighed down whenever chance
 // puts chi2 above 7 (test MergeGates.TheKeyframeEstimateIsAPrior...: RMS error 3 times the
-// refinement's). README, Configuration, has the variants tried (the disagreement measured
+// refinement's). docs/DESIGN.md has the variants tried (the disagreement measured
 // without T, a chi-square 95 % threshold, the mean's own covariance, the formula before).
 void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinement, bool combine, GateVerdict* v) {
   v->estimate = refinement.estimate;
@@ -167,7 +167,7 @@ void keepRefinement(const KeyframeEstimate& keyframes, const Refinement& refinem
   // keyframe of the overlap, the variation that T stands for in the keyframe estimate: T is not
   // added again. With T its 6-DoF ANEES against the anchor pair's local truth was 0.24 on the
   // bench's 60 simulated and unequal-noise LSD merges, without it 1.00 (92 % under the chi-square
-  // 95 % bound; README, Configuration).
+  // 95 % bound; docs/DESIGN.md).
   v->covariance = s * refinement.covariance + (s - 1.0) * keyframe_mean;
   if (!refinement.projective) v->covariance += keyframes.between;
 }
@@ -310,7 +310,7 @@ GateVerdict MergeGates::judge(const KeyframeEstimate& keyframes, const Refinemen
     // the two directions' difference): it is not combined with the keyframe estimate, which reads
     // the same keyframes' depth. Combined, with the independent fusion's covariance, 79 % of the
     // bench's simulated and unequal-noise LSD merges were under the chi-square 95 % bound
-    // (README, Configuration).
+    // (docs/DESIGN.md).
     keepRefinement(keyframes, refinement, options_.combine_with_keyframe_estimate && !refinement.projective, &v);
   } else {
     v.estimate = keyframes.estimate;

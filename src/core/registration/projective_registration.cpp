@@ -87,7 +87,7 @@ struct Match {
 // a relative rho (depthDisagreement()). Only the depth residual gains it: the same relative error
 // put on the moving point's ray as well (what it sees in the other keyframe) made the real LSD-SLAM
 // maps slide 18-140 deg away again, since the IRLS weighs a covariance that grows with the estimate's
-// scale without paying for it (README, Troubleshooting).
+// scale without paying for it (docs/DESIGN.md).
 Eigen::Matrix2d covarianceAt(const Match& m, double rho2) {
   Eigen::Matrix2d c;
   c << m.fixed_var + rho2 * m.fixed_depth2, 0.0, 0.0, m.edge_var;
@@ -199,7 +199,7 @@ void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<Fixed
     // Of the pixels with depth within the radius, the one the noise model finds likeliest to be
     // the same point (the smallest squared Mahalanobis length of the residual pair). The nearest
     // pixel in the image is often across a depth edge, since semi-dense depth lies on edges: on
-    // real LSD-SLAM keyframes the estimate then ran away (README, Troubleshooting).
+    // real LSD-SLAM keyframes the estimate then ran away (docs/DESIGN.md).
     Match m;
     m.chi2 = std::numeric_limits<double>::infinity();
     Eigen::Vector2d best_n = Eigen::Vector2d::Zero();
@@ -278,7 +278,7 @@ struct Direction {
 // bench's simulated worlds, in the direction kept). Two independent monocular maps also differ by
 // their scale drift and distortion, which grow with depth: on the real LSD-SLAM maps of 7-Scenes
 // rho was 0.13-0.25, and without it the depth residuals, weighed as if exact to their variance,
-// made the estimate slide 21-165 deg away (README, Troubleshooting; with it the slide was slower,
+// made the estimate slide 21-165 deg away (docs/DESIGN.md; with it the slide was slower,
 // and the grey levels stopped it). The matches' chi2 and information are updated to rho (the pixel
 // chosen per match stays the one chosen at the previous rho). Every match is the likeliest pixel of
 // several, which lowers its residual: rho is then, if anything, too small, never raised by the
