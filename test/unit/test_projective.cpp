@@ -1,5 +1,6 @@
 // The projective registration of two maps' LSD keyframe depth (registration/projective_registration.h).
 #include <gtest/gtest.h>
+#include <omp.h>
 
 #include <cmath>
 #include <cstdio>
@@ -165,6 +166,33 @@ TEST(Projective, TheMapsDepthDisagreementIsMeasuredAndWeighed) {
   }
   EXPECT_LT(with, 0.6 * without) << "mean rotation error with the disagreement weighed " << with << " deg, without "
                                   << without << " deg";
+}
+
+// The two directions and the jackknife's leave-outs run side by side, and their loops' chunks go to
+// whichever thread of the team is free; each chunk writes only its own outputs, read back in chunk
+// order. So the result must not depend on the number of threads, bit for bit: on
+// driftedLsdWorld(), whose depth disagreement (rho > 0) re-sets the matches' noise every iteration,
+// with the keyframe jackknife and the two directions' difference (the defaults).
+TEST(Projective, TheSameResultBitForBitOnOneThreadAsOnTwo) {
+  const auto [w, start] = driftedLsdWorld(1);
+  const int threads = omp_get_max_threads();
+  omp_set_num_threads(1);
+  const ProjectiveResult one = registerProjective(w.source, w.target, start);
+  omp_set_num_threads(2);
+  const ProjectiveResult two = registerProjective(w.source, w.target, start);
+  omp_set_num_threads(threads);
+  ASSERT_EQ(one.status, Status::kOk) << one.message;
+  ASSERT_TRUE(one.jackknifed) << one.message;
+  EXPECT_GT(one.depth_disagreement, 0.0);
+  EXPECT_EQ(two.status, one.status);
+  EXPECT_EQ(two.iterations, one.iterations);
+  EXPECT_EQ(two.matches, one.matches);
+  EXPECT_EQ(two.photometric_rows, one.photometric_rows);
+  EXPECT_EQ(two.depth_disagreement, one.depth_disagreement);
+  EXPECT_TRUE(two.estimate.matrix() == one.estimate.matrix()) << "rotation "
+                                                             << rotationDeg(two.estimate, one.estimate) << " deg apart";
+  EXPECT_TRUE(two.covariance == one.covariance);
+  EXPECT_EQ(two.message, one.message);
 }
 
 // The jackknife's leave-outs on a 1-in-4 subsample of the moving points

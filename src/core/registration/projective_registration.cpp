@@ -2,6 +2,9 @@
 
 #include <Eigen/Cholesky>
 #include <opencv2/imgproc.hpp>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 #include <algorithm>
 #include <cmath>
@@ -231,26 +234,91 @@ void matchPoint(const Sim3& s, const MovingPoint& point, const std::vector<Fixed
   }
 }
 
-// Every match of the moving points at S, in the order of the points and keyframes. The points are
-// split into a fixed number of contiguous chunks, each collecting its own matches, joined in chunk
-// order: the same result on any number of threads, and a handful of allocations per iteration
-// instead of one per point.
-std::vector<Match> matchesAt(const Sim3& s, const std::vector<MovingPoint>& points,
-                             const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
-                             const ProjectiveOptions& o, double rho2) {
-  const std::size_t chunk_count = std::min<std::size_t>(kMatchChunks, std::max<std::size_t>(1, points.size()));
-  std::vector<std::vector<Match>> per_chunk(chunk_count);
-#pragma omp parallel for schedule(dynamic)
-  for (std::size_t chunk = 0; chunk < chunk_count; ++chunk) {
-    const std::size_t begin = points.size() * chunk / chunk_count, end = points.size() * (chunk + 1) / chunk_count;
-    for (std::size_t i = begin; i < end; ++i) matchPoint(s, points[i], frames, k, o, rho2, &per_chunk[chunk]);
+// Runs body(chunk) for every chunk in [0, count), each chunk writing only its own outputs, so the
+// result is the same on any number of threads. Inside a parallel region (the two directions and the
+// jackknife's leave-outs run side by side, registerProjective()) the chunks are tasks of the team: a
+// thread whose own registration has ended then takes chunks of the others' instead of waiting (on
+// the real LSD-SLAM maps one direction moves 2.8 times the other's points). Outside one, a parallel
+// loop.
+template <class Body>
+void forEachChunk(std::size_t count, const Body& body) {
+#ifdef _OPENMP
+  if (omp_in_parallel()) {
+#pragma omp taskloop grainsize(1)
+    for (std::size_t chunk = 0; chunk < count; ++chunk) body(chunk);
+    return;
   }
-  std::size_t total = 0;
-  for (const auto& v : per_chunk) total += v.size();
-  std::vector<Match> out;
-  out.reserve(total);
-  for (const auto& v : per_chunk) out.insert(out.end(), v.begin(), v.end());
-  return out;
+#endif
+#pragma omp parallel for schedule(dynamic)
+  for (std::size_t chunk = 0; chunk < count; ++chunk) body(chunk);
+}
+
+// Chunk c of n over [0, size): its first index and one past its last.
+std::pair<std::size_t, std::size_t> chunkRange(std::size_t size, std::size_t c, std::size_t n) {
+  return {size * c / n, size * (c + 1) / n};
+}
+
+// One intensity comparison: a moving point projected into a fixed keyframe.
+struct PhotometricRow {
+  Eigen::Matrix<double, 1, 7> j;
+  double r = 0.0;  // the fixed image's grey level there minus the point's own [grey levels]
+  int pair = 0;    // moving keyframe * fixed keyframes + fixed keyframe
+};
+
+// Items collected in chunks, one per task, and read in chunk order as one sequence: the same
+// sequence on any number of threads, without copying the chunks into one vector.
+template <class T>
+struct Chunked {
+  std::vector<std::vector<T>> chunks;
+  std::size_t size() const {
+    std::size_t n = 0;
+    for (const std::vector<T>& c : chunks) n += c.size();
+    return n;
+  }
+  /// Calls f on every item, in order.
+  template <class F>
+  void each(const F& f) {
+    for (std::vector<T>& c : chunks) {
+      for (T& item : c) f(item);
+    }
+  }
+  template <class F>
+  void each(const F& f) const {
+    for (const std::vector<T>& c : chunks) {
+      for (const T& item : c) f(item);
+    }
+  }
+  /// Empties the chunks and keeps count of them, their memory kept.
+  void reset(std::size_t count) {
+    chunks.resize(count);
+    for (std::vector<T>& c : chunks) c.clear();
+  }
+};
+
+// The buffers of one registration's iterations, kept from one iteration to the next: each
+// iteration fills them again to about the same size. Allocated anew each time, and joined into one
+// vector, they cost fresh pages from the kernel and a copy: in a profile of the real LSD-SLAM maps'
+// merges, about a tenth of the time in page faults and 7 % in the copy.
+struct Workspace {
+  Chunked<Match> matches;
+  Chunked<PhotometricRow> rows;
+  std::vector<std::vector<double>> per_pair;
+  std::vector<double> values;
+  std::vector<std::size_t> offsets;
+};
+
+// Every match of the moving points at S, in the order of the points and keyframes, into
+// ws->matches. The points are split into a fixed number of contiguous chunks, each collecting its
+// own matches: the same sequence on any number of threads.
+Chunked<Match>& matchesAt(const Sim3& s, const std::vector<MovingPoint>& points, const std::vector<FixedKeyframe>& frames,
+                          const PinholeCamera& k, const ProjectiveOptions& o, double rho2, Workspace* ws) {
+  const std::size_t chunk_count = std::min<std::size_t>(kMatchChunks, std::max<std::size_t>(1, points.size()));
+  ws->matches.reset(chunk_count);
+  forEachChunk(chunk_count, [&](std::size_t chunk) {
+    const auto [begin, end] = chunkRange(points.size(), chunk, chunk_count);
+    for (std::size_t i = begin; i < end; ++i) matchPoint(s, points[i], frames, k, o, rho2, &ws->matches.chunks[chunk]);
+  });
+  return ws->matches;
 }
 
 struct Direction {
@@ -283,57 +351,66 @@ struct Direction {
 // chosen per match stays the one chosen at the previous rho). Every match is the likeliest pixel of
 // several, which lowers its residual: rho is then, if anything, too small, never raised by the
 // selection. @return rho^2
-double depthDisagreement(std::vector<Match>* matches, double previous_rho2) {
+double depthDisagreement(Chunked<Match>* matches, double previous_rho2, Workspace* ws) {
   // No search: a match's r_d^2 / (v + rho^2 z0^2) is at most the chi-square's median c exactly when
   // rho^2 >= t = (r_d^2 / c - v) / z0^2, so as many of them are at most c as there are t at most
   // rho^2, and the ratios' upper median is at most c from the t's upper median on. That t is the
   // smallest rho^2, exactly and in one partial sort (a bisection to 0.1 % took about 16).
   // Both loops are per match, so they give the same result on any number of threads.
-  std::vector<double> t(matches->size());
-#pragma omp parallel for schedule(static)
-  for (std::size_t i = 0; i < matches->size(); ++i) {
-    const Match& m = (*matches)[i];
-    const double excess = m.r(0) * m.r(0) / kMedianChi2Of1 - covarianceAt(m, 0.0)(0, 0);
-    t[i] = m.fixed_depth2 > 0.0 ? excess / m.fixed_depth2
-                                : (excess > 0.0 ? std::numeric_limits<double>::infinity() : 0.0);
-  }
+  const std::size_t chunks = matches->chunks.size();
+  std::vector<std::size_t>& offset = ws->offsets;  // of each chunk's first match in t
+  offset.assign(chunks + 1, 0);
+  for (std::size_t c = 0; c < chunks; ++c) offset[c + 1] = offset[c] + matches->chunks[c].size();
+  std::vector<double>& t = ws->values;
+  t.resize(offset[chunks]);
+  forEachChunk(chunks, [&](std::size_t c) {
+    const std::vector<Match>& mine = matches->chunks[c];
+    for (std::size_t i = 0; i < mine.size(); ++i) {
+      const Match& m = mine[i];
+      const double excess = m.r(0) * m.r(0) / kMedianChi2Of1 - covarianceAt(m, 0.0)(0, 0);
+      t[offset[c] + i] = m.fixed_depth2 > 0.0 ? excess / m.fixed_depth2
+                                              : (excess > 0.0 ? std::numeric_limits<double>::infinity() : 0.0);
+    }
+  });
   const double smallest = upperMedian(&t);
   const double rho2 = smallest > 0.0 ? std::min(smallest, kMaxDepthDisagreement * kMaxDepthDisagreement) : 0.0;
   if (rho2 == previous_rho2) return rho2;
-#pragma omp parallel for schedule(static)
-  for (std::size_t i = 0; i < matches->size(); ++i) setNoise(rho2, &(*matches)[i]);
+  forEachChunk(chunks, [&](std::size_t c) {
+    for (Match& m : matches->chunks[c]) setNoise(rho2, &m);
+  });
   return rho2;
 }
 
 // The matches at S with the two maps' depth disagreement re-estimated from them (when the option is
-// on): d->rho2 is updated.
-std::vector<Match> matchesWithDisagreement(const Sim3& s, const std::vector<MovingPoint>& points,
-                                           const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
-                                           const ProjectiveOptions& o, Direction* d) {
-  std::vector<Match> matches = matchesAt(s, points, frames, k, o, d->rho2);
-  if (o.depth_disagreement && static_cast<int>(matches.size()) >= kMinMatches) {
-    d->rho2 = depthDisagreement(&matches, d->rho2);
+// on): d->rho2 is updated. @return ws->matches
+Chunked<Match>& matchesWithDisagreement(const Sim3& s, const std::vector<MovingPoint>& points,
+                                        const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
+                                        const ProjectiveOptions& o, Direction* d, Workspace* ws) {
+  matchesAt(s, points, frames, k, o, d->rho2, ws);
+  if (o.depth_disagreement && static_cast<int>(ws->matches.size()) >= kMinMatches) {
+    d->rho2 = depthDisagreement(&ws->matches, d->rho2, ws);
   }
-  return matches;
+  return ws->matches;
 }
 
 // The IRLS normal equations of the matches: Cauchy weights on the squared Mahalanobis lengths
 // over their robust spread (their median over the chi-square's, at least 1: residuals that follow
 // their noise model keep it).
-void normalEquations(const std::vector<Match>& matches, double width, Matrix7d* h, Vector7d* g, double* median_chi2) {
-  std::vector<double> chi2;
-  chi2.reserve(matches.size());
-  for (const Match& m : matches) chi2.push_back(m.chi2);
+void normalEquations(const Chunked<Match>& matches, double width, Matrix7d* h, Vector7d* g, double* median_chi2,
+                     Workspace* ws) {
+  std::vector<double>& chi2 = ws->values;
+  chi2.clear();
+  matches.each([&](const Match& m) { chi2.push_back(m.chi2); });
   *median_chi2 = upperMedian(&chi2);
   const double spread = std::max(1.0, *median_chi2 / kMedianChi2Of2);
   h->setZero();
   g->setZero();
-  for (const Match& m : matches) {
+  matches.each([&](const Match& m) {
     const double w = 1.0 / (1.0 + m.chi2 / (spread * width * width));
     const Eigen::Matrix2d& ci = m.information;
     *h += w * m.j.transpose() * ci * m.j;
     *g += w * m.j.transpose() * ci * m.r;
-  }
+  });
   *h /= spread;
   *g /= spread;
 }
@@ -345,28 +422,21 @@ float bilinear(const cv::Mat& m, double u, double v) {
          (1 - a) * b * m.at<float>(y + 1, x) + a * b * m.at<float>(y + 1, x + 1);
 }
 
-// One intensity comparison: a moving point projected into a fixed keyframe.
-struct PhotometricRow {
-  Eigen::Matrix<double, 1, 7> j;
-  double r = 0.0;  // the fixed image's grey level there minus the point's own [grey levels]
-  int pair = 0;    // moving keyframe * fixed keyframes + fixed keyframe
-};
-
 // The photometric rows of the moving points at S (ProjectiveOptions::photometric): every point
 // that projects inside a fixed keyframe, and is not hidden there by a nearer surface of that
 // keyframe's depth, compares its grey level with the fixed image's at its projection (bilinear),
 // whose gradient gives the Jacobian. Unlike the depth and edge residuals, this needs no pixel with
-// depth near the projection, so it holds the estimate where those let it slide (README,
-// Troubleshooting). Chunked as matchesAt().
-std::vector<PhotometricRow> photometricRowsAt(const Sim3& s, const std::vector<MovingPoint>& points,
-                                              const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
-                                              double rho2) {
+// depth near the projection, so it holds the estimate where those let it slide (docs/DESIGN.md).
+// Chunked as matchesAt(), into ws->rows.
+Chunked<PhotometricRow>& photometricRowsAt(const Sim3& s, const std::vector<MovingPoint>& points,
+                                           const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
+                                           double rho2, Workspace* ws) {
   const std::size_t chunk_count = std::min<std::size_t>(kMatchChunks, std::max<std::size_t>(1, points.size()));
-  std::vector<std::vector<PhotometricRow>> per_chunk(chunk_count);
+  ws->rows.reset(chunk_count);
   const int nf = static_cast<int>(frames.size());
-#pragma omp parallel for schedule(dynamic)
-  for (std::size_t chunk = 0; chunk < chunk_count; ++chunk) {
-    const std::size_t begin = points.size() * chunk / chunk_count, end = points.size() * (chunk + 1) / chunk_count;
+  forEachChunk(chunk_count, [&](std::size_t chunk) {
+    std::vector<PhotometricRow>& mine = ws->rows.chunks[chunk];
+    const auto [begin, end] = chunkRange(points.size(), chunk, chunk_count);
     for (std::size_t i = begin; i < end; ++i) {
       const MovingPoint& point = points[i];
       const Eigen::Vector3d y = s.apply(point.p);
@@ -389,13 +459,11 @@ std::vector<PhotometricRow> photometricRowsAt(const Sim3& s, const std::vector<M
         row.j = gradient * projectionJacobian(k, c) * jc;
         row.r = bilinear(f.grey, u, v) - point.intensity;
         row.pair = point.keyframe * nf + fi;
-        per_chunk[chunk].push_back(row);
+        mine.push_back(row);
       }
     }
-  }
-  std::vector<PhotometricRow> out;
-  for (const auto& v : per_chunk) out.insert(out.end(), v.begin(), v.end());
-  return out;
+  });
+  return ws->rows;
 }
 
 // Adds the photometric rows' IRLS normal equations to h and g. Each pair of keyframes has its own
@@ -404,45 +472,48 @@ std::vector<PhotometricRow> photometricRowsAt(const Sim3& s, const std::vector<M
 // times their median absolute difference, at least the 8-bit quantisation of two images), re-measured
 // every iteration as the depth disagreement is; Cauchy weights of the same width as the geometric
 // residuals'. @return that noise [grey levels], 0 when there are too few rows (fewer than kMinMatches)
-double photometricEquations(std::vector<PhotometricRow>* rows, double width, Matrix7d* h, Vector7d* g) {
+double photometricEquations(Chunked<PhotometricRow>* rows, double width, Matrix7d* h, Vector7d* g,
+                            Workspace* ws) {
   if (static_cast<int>(rows->size()) < kMinMatches) return 0.0;
   // Per pair of keyframes, indexed by PhotometricRow::pair (a dense index), each pair's differences
   // in the rows' order.
   int pairs = 0;
-  for (const PhotometricRow& row : *rows) pairs = std::max(pairs, row.pair + 1);
-  std::vector<std::vector<double>> per_pair(static_cast<std::size_t>(pairs));
-  for (const PhotometricRow& row : *rows) per_pair[static_cast<std::size_t>(row.pair)].push_back(row.r);
+  rows->each([&](const PhotometricRow& row) { pairs = std::max(pairs, row.pair + 1); });
+  std::vector<std::vector<double>>& per_pair = ws->per_pair;
+  per_pair.resize(static_cast<std::size_t>(pairs));
+  for (std::vector<double>& v : per_pair) v.clear();
+  rows->each([&](const PhotometricRow& row) { per_pair[static_cast<std::size_t>(row.pair)].push_back(row.r); });
   std::vector<double> offset(per_pair.size());
   for (std::size_t pair = 0; pair < per_pair.size(); ++pair) offset[pair] = upperMedian(&per_pair[pair]);
-  std::vector<double> absolute;
-  absolute.reserve(rows->size());
-  for (PhotometricRow& row : *rows) {
+  std::vector<double>& absolute = ws->values;
+  absolute.clear();
+  rows->each([&](PhotometricRow& row) {
     row.r -= offset[static_cast<std::size_t>(row.pair)];
     absolute.push_back(std::abs(row.r));
-  }
+  });
   const double sigma = std::max(kMinIntensityStddev, 1.4826 * upperMedian(&absolute));
-  for (const PhotometricRow& row : *rows) {
+  std::as_const(*rows).each([&](const PhotometricRow& row) {
     const double z2 = row.r * row.r / (sigma * sigma);
     const double w = 1.0 / (1.0 + z2 / (width * width)) / (sigma * sigma);
     *h += w * row.j.transpose() * row.j;
     *g += w * row.j.transpose() * row.r;
-  }
+  });
   return sigma;
 }
 
 // The normal equations at S of the geometric matches (normalEquations()) plus, with the option, the
-// photometric rows (photometricEquations()). @return the geometric matches
-std::vector<Match> equationsAt(const Sim3& s, const std::vector<MovingPoint>& points,
-                               const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
-                               const ProjectiveOptions& o, Direction* d, Vector7d* g) {
-  std::vector<Match> matches = matchesWithDisagreement(s, points, frames, k, o, d);
+// photometric rows (photometricEquations()). @return the geometric matches (ws->matches)
+const Chunked<Match>& equationsAt(const Sim3& s, const std::vector<MovingPoint>& points,
+                                  const std::vector<FixedKeyframe>& frames, const PinholeCamera& k,
+                                  const ProjectiveOptions& o, Direction* d, Vector7d* g, Workspace* ws) {
+  const Chunked<Match>& matches = matchesWithDisagreement(s, points, frames, k, o, d, ws);
   if (static_cast<int>(matches.size()) < kMinMatches) return matches;
-  normalEquations(matches, o.kernel_width, &d->information, g, &d->median_chi2);
+  normalEquations(matches, o.kernel_width, &d->information, g, &d->median_chi2, ws);
   d->matches = static_cast<int>(matches.size());
   if (o.photometric) {
-    std::vector<PhotometricRow> rows = photometricRowsAt(s, points, frames, k, d->rho2);
+    Chunked<PhotometricRow>& rows = photometricRowsAt(s, points, frames, k, d->rho2, ws);
     d->photometric_rows = static_cast<int>(rows.size());
-    d->photometric_stddev = photometricEquations(&rows, o.kernel_width, &d->information, g);
+    d->photometric_stddev = photometricEquations(&rows, o.kernel_width, &d->information, g, ws);
   }
   return matches;
 }
@@ -452,6 +523,7 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
   Direction d;
   d.estimate = initial;
   if (points.empty()) return d;
+  Workspace ws;
   // The moving points' RMS radius about their centroid [moving map units]: the length scale of the
   // translation's convergence check.
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
@@ -463,7 +535,7 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
   double previous_ratio = std::numeric_limits<double>::infinity();  // |previous| / |the one before|
   for (int it = 0; it < o.max_iterations; ++it) {
     Vector7d g;
-    if (static_cast<int>(equationsAt(d.estimate, points, frames, k, o, &d, &g).size()) < kMinMatches) return d;
+    if (static_cast<int>(equationsAt(d.estimate, points, frames, k, o, &d, &g, &ws).size()) < kMinMatches) return d;
     const Eigen::LDLT<Matrix7d> ldlt(d.information);
     if (ldlt.info() != Eigen::Success) return d;
     const Vector7d step = -ldlt.solve(g);
@@ -502,21 +574,21 @@ Direction solve(const std::vector<MovingPoint>& points, const std::vector<FixedK
   }
   // The noise model's fit and the information at the final estimate.
   Vector7d g;
-  const std::vector<Match> matches = equationsAt(d.estimate, points, frames, k, o, &d, &g);
+  const Chunked<Match>& matches = equationsAt(d.estimate, points, frames, k, o, &d, &g, &ws);
   if (static_cast<int>(matches.size()) < kMinMatches) return d;
   int moving_keyframes = 0;
   for (const MovingPoint& m : points) moving_keyframes = std::max(moving_keyframes, m.keyframe + 1);
   d.moving_matches.assign(static_cast<std::size_t>(moving_keyframes), 0);
   d.fixed_matches.assign(frames.size(), 0);
-  for (const Match& m : matches) {
+  matches.each([&](const Match& m) {
     ++d.moving_matches[static_cast<std::size_t>(m.moving_keyframe)];
     ++d.fixed_matches[static_cast<std::size_t>(m.fixed_keyframe)];
-  }
+  });
   d.per_pixel_median_chi2 = d.median_chi2;
   if (d.rho2 > 0.0) {
     std::vector<double> chi2;
     chi2.reserve(matches.size());
-    for (const Match& m : matches) chi2.push_back(m.r.dot(covarianceAt(m, 0.0).inverse() * m.r));
+    matches.each([&](const Match& m) { chi2.push_back(m.r.dot(covarianceAt(m, 0.0).inverse() * m.r)); });
     d.per_pixel_median_chi2 = upperMedian(&chi2);
   }
   d.ok = d.estimate.matrix().allFinite() && d.information.allFinite();
@@ -566,9 +638,10 @@ Jackknife jackknifeKeyframes(const std::vector<MovingPoint>& points, const std::
     deltas->push_back(d);
   };
   // The leave-outs: each moving keyframe with matches, then each fixed one. They are independent and
-  // run side by side, each on one thread (the registration's own loops give the same result on any
-  // number of threads, matchesAt()); more of the work is then parallel than within one registration,
-  // whose robust medians and normal equations are serial.
+  // run side by side as tasks, one thread each, whose own loops' chunks any idle thread of the team
+  // takes as well (forEachChunk(); the same result on any number of threads); more of the work is
+  // then parallel than within one registration, whose robust medians and normal equations are
+  // serial.
   std::vector<std::pair<bool, std::size_t>> jobs;  // (a moving keyframe?, its index)
   for (std::size_t kf = 0; kf < full.moving_matches.size(); ++kf) {
     if (full.moving_matches[kf] >= kMinMatches) jobs.emplace_back(true, kf);
@@ -577,8 +650,7 @@ Jackknife jackknifeKeyframes(const std::vector<MovingPoint>& points, const std::
     if (full.fixed_matches[kf] >= kMinMatches) jobs.emplace_back(false, kf);
   }
   std::vector<Direction> results(jobs.size());
-#pragma omp parallel for schedule(dynamic)
-  for (std::size_t job = 0; job < jobs.size(); ++job) {
+  const auto leave_out = [&](std::size_t job) {
     const auto [is_moving, kf] = jobs[job];
     if (is_moving) {
       std::vector<MovingPoint> kept;
@@ -594,6 +666,12 @@ Jackknife jackknifeKeyframes(const std::vector<MovingPoint>& points, const std::
       }
       results[job] = solve(subsample, kept, k, start, o);
     }
+  };
+#pragma omp parallel
+#pragma omp single
+  for (std::size_t job = 0; job < jobs.size(); ++job) {
+#pragma omp task firstprivate(job)
+    leave_out(job);
   }
   std::vector<Vector7d> moving, fixed;
   for (std::size_t job = 0; job < jobs.size(); ++job) add(results[job], jobs[job].first ? &moving : &fixed);
@@ -649,13 +727,15 @@ ProjectiveResult registerProjective(const AgentMap& source, const AgentMap& targ
                                    target_frames = fixedKeyframes(target, options);
   const std::vector<MovingPoint> source_points = movingPoints(source, source_frames, options),
                                  target_points = movingPoints(target, target_frames, options);
-  // The two directions side by side, each on one thread (as the jackknife's leave-outs).
+  // The two directions side by side as tasks (as the jackknife's leave-outs): the thread that ends
+  // its direction first then takes chunks of the other's loops.
   Direction forward, backward;
-#pragma omp parallel sections
+#pragma omp parallel
+#pragma omp single
   {
-#pragma omp section
+#pragma omp task shared(forward)
     forward = solve(source_points, target_frames, target.camera, initial, options);
-#pragma omp section
+#pragma omp task shared(backward)
     backward = solve(target_points, source_frames, source.camera, initial.inverse(), options);
   }
   // The backward direction's own estimate B (source -> target is B⁻¹), kept for its jackknife.
