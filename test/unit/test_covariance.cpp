@@ -435,9 +435,6 @@ TEST(Covariance, AnInvertedDegenerateResultKeepsItsUnobservableDirection) {
   EXPECT_GT(res.information.norm(), 0.0);
 }
 
-// The information reported with a covariance that is not positive definite (a DEGENERATE merge
-// that keeps the keyframe estimate): the inverse where the covariance is positive, nothing claimed
-// along a zero or negative variance, nothing at all when it is not finite.
 // A random orthonormal 6x6 basis: the eigen-directions of a test covariance.
 Matrix6d randomRotation6(unsigned seed) {
   std::mt19937 rng(seed);
@@ -447,6 +444,9 @@ Matrix6d randomRotation6(unsigned seed) {
   return Eigen::HouseholderQR<Matrix6d>(a).householderQ();
 }
 
+// The information reported with a covariance that is not positive definite (a DEGENERATE merge
+// that keeps the keyframe estimate): the inverse where the covariance is positive, nothing claimed
+// along a zero or negative variance, nothing at all when it is not finite.
 TEST(Covariance, PositivePartInformationClaimsNothingWhereTheCovarianceIsNotPositive) {
   const Matrix6d q = randomRotation6(7);
   // Mixed units, as a pose covariance has them: [m^2] and [rad^2].
