@@ -43,15 +43,19 @@ std::string checkMap(const AgentMap& map, const char* which) {
   return "";
 }
 
-// The 6x6 pose covariance (marginal of the 7x7) and its information; false when not finite or
-// not positive definite.
-bool poseCovariance(const Matrix7d& cov7, Matrix6d* cov, Matrix6d* info) {
-  *cov = 0.5 * (cov7.topLeftCorner<6, 6>() + cov7.topLeftCorner<6, 6>().transpose());
-  const Eigen::LDLT<Matrix6d> ldlt(*cov);
+// The 6x6 pose covariance: the marginal of the 7x7, made symmetric.
+Matrix6d poseCovariance(const Matrix7d& cov7) {
+  return 0.5 * (cov7.topLeftCorner<6, 6>() + cov7.topLeftCorner<6, 6>().transpose());
+}
+
+// Its information; false when the covariance is not finite or not positive definite.
+bool poseInformation(const Matrix6d& cov, Matrix6d* info) {
+  if (!cov.allFinite()) return false;
+  const Eigen::LDLT<Matrix6d> ldlt(cov);
   if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return false;
   *info = ldlt.solve(Matrix6d::Identity());
   *info = 0.5 * (*info + info->transpose()).eval();
-  return cov->allFinite() && info->allFinite();
+  return info->allFinite();
 }
 
 void reportPairs(const KeyframeEstimate& kf, RegistrationReport* rep) {
@@ -471,18 +475,20 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   }
   rep.transform = verdict.estimate;
   rep.scale_stddev = verdict.estimate.scale() * std::sqrt(std::max(0.0, verdict.covariance(6, 6)));
-  Matrix6d cov, info;
-  const bool finite = poseCovariance(verdict.covariance, &cov, &info);
-  if (verdict.status == Status::kDegenerate || !finite) {
+  const Matrix6d cov = poseCovariance(verdict.covariance);
+  Matrix6d info;
+  // A DEGENERATE verdict's covariance is not inverted: its unobservable directions would be.
+  const bool degenerate = verdict.status == Status::kDegenerate;
+  if (degenerate || !poseInformation(cov, &info)) {
     // Unobservable directions: the covariance's own information (degenerateUncertainty()).
     const bool closed_form = verdict.refinement_kept && !refinement.projective;
     const ReportedUncertainty u = degenerateUncertainty(cov, closed_form ? &refinement.closed_form : nullptr);
     rep.covariance = u.covariance;
     rep.information = u.information;
     const std::string closed = closed_form ? refinement.closed_form.message : std::string();
-    return finish(Status::kDegenerate, finite ? verdict.message
-                                              : "the covariance is not positive definite" +
-                                                    (closed.empty() ? std::string() : "; " + closed));
+    return finish(Status::kDegenerate, degenerate ? verdict.message
+                                                  : "the covariance is not positive definite" +
+                                                        (closed.empty() ? std::string() : "; " + closed));
   }
   rep.covariance = cov;
   rep.information = info;
