@@ -1663,5 +1663,41 @@ TEST(ErrorRule, RegisterCloudsAnswersNoPointsWithAStatusAndThrowsForCallersMista
   EXPECT_THROW(registerClouds(cloud, cloud, std::nullopt, RegistrationOptions(), &other), InputError);
 }
 
+// A cloud whose points all sit at one place (a sensor that published one point many times, a
+// cloud collapsed by a wrong unit) has no shape: it is INVALID_INPUT naming the cloud, in the
+// offline registration and in the merge's, where the ICP used to run its 60 iterations on it and
+// answer ICP_NOT_CONVERGED. A small cloud, or one far from the origin, is not mistaken for one.
+TEST(ErrorRule, ACloudWhosePointsAllCoincideIsInvalidInputNamingIt) {
+  std::mt19937 rng(5);
+  const Cloud cloud = test::syntheticScene(500, 4.0, rng);
+  const Cloud one_place = Eigen::Vector3d(1.0, 2.0, 3.0).replicate(1, 500);
+  // Coordinates near 1000 rounded to floats: a spread of a few float steps is rounding, not shape.
+  Cloud rounded = Eigen::Vector3d(1000.0, 1000.0, 1000.0).replicate(1, 500);
+  for (Eigen::Index i = 0; i < rounded.cols(); ++i) {
+    rounded(0, i) = static_cast<double>(std::nextafter(1000.0f, 2000.0f)) + (i % 3) * 6.1e-5;
+  }
+  for (const Cloud* shapeless : std::vector<const Cloud*>{&one_place, &rounded}) {
+    RegistrationReport r = registerClouds(*shapeless, cloud, std::nullopt, RegistrationOptions());
+    EXPECT_EQ(r.status, Status::kInvalidInput) << r.message;
+    EXPECT_NE(r.message.find("every point of the source cloud (500 after the filters) is at the same place"),
+              std::string::npos)
+        << r.message;
+    EXPECT_FALSE(r.transform);
+    r = registerClouds(cloud, *shapeless, std::nullopt, RegistrationOptions());
+    EXPECT_EQ(r.status, Status::kInvalidInput) << r.message;
+    EXPECT_NE(r.message.find("target cloud"), std::string::npos) << r.message;
+
+    MapRegistration registration(RegistrationOptions(), true, MergeGateOptions().reweigh_keyframe_matches);
+    EXPECT_NE(registration.setClouds(*shapeless, cloud).find("every point of the source map cloud"), std::string::npos);
+    EXPECT_NE(registration.setClouds(cloud, *shapeless).find("every point of the target map cloud"), std::string::npos);
+  }
+  // Shapes of any size, anywhere, are registered.
+  EXPECT_EQ(coincidentPoints(1e-6 * cloud, "cloud"), "");
+  EXPECT_EQ(coincidentPoints((1e-3 * cloud).colwise() + Eigen::Vector3d(1e3, -1e3, 1e3), "cloud"), "");
+  EXPECT_EQ(coincidentPoints(Cloud(3, 0), "cloud"), "");
+  MapRegistration registration(RegistrationOptions(), true, MergeGateOptions().reweigh_keyframe_matches);
+  EXPECT_EQ(registration.setClouds(cloud, 1e-6 * cloud), "");
+}
+
 }  // namespace
 }  // namespace pcr_pro

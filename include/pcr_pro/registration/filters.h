@@ -112,4 +112,13 @@ std::vector<Eigen::Index> maxPointsIndices(Eigen::Index size, const MaxPointsOpt
  */
 Cloud applyFilterChain(const Cloud& cloud, const FilterChainOptions& options);
 
+/**
+ * @brief Whether the points of a filtered cloud all coincide: on every axis their spread is within
+ * the rounding of single-precision coordinates (16 float epsilons of the largest coordinate, since
+ * clouds usually come as floats: PCD, ROS messages), so the cloud has no shape to register.
+ * @param name the cloud in the message, e.g. "source cloud"
+ * @return why the cloud cannot be registered, or "" when its points do not all coincide (or it is empty)
+ */
+std::string coincidentPoints(const Cloud& cloud, const std::string& name);
+
 }  // namespace pcr_pro

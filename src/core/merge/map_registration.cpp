@@ -117,6 +117,9 @@ std::string MapRegistration::setClouds(const Cloud& source, const Cloud& target)
     return std::string("the filters removed every point of the ") + (source_.cols() == 0 ? "source" : "target") +
            " map cloud";
   }
+  std::string shapeless = coincidentPoints(source_, "source map cloud");
+  if (shapeless.empty()) shapeless = coincidentPoints(target_, "target map cloud");
+  if (!shapeless.empty()) return shapeless;
   target_tree_ = std::make_unique<KdTree>(target_);
   source_tree_ = std::make_unique<KdTree>(source_);
   target_spacing_ = medianSpacing(*target_tree_);

@@ -54,6 +54,14 @@ RegistrationReport registerClouds(const Cloud& source, const Cloud& target, cons
     report.timings.total = msSince(t_total);
     return report;
   }
+  std::string shapeless = coincidentPoints(src, "source cloud");
+  if (shapeless.empty()) shapeless = coincidentPoints(tgt, "target cloud");
+  if (!shapeless.empty()) {
+    report.status = Status::kInvalidInput;
+    report.message = shapeless;
+    report.timings.total = msSince(t_total);
+    return report;
+  }
 
   Sim3 start;
   if (initial) {

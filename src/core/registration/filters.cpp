@@ -4,6 +4,7 @@
 #include <array>
 #include <cstdint>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <string>
 #include <unordered_map>
@@ -274,6 +275,15 @@ Cloud applyFilterChain(const Cloud& cloud, const FilterChainOptions& options) {
     }
   }
   return out;
+}
+
+std::string coincidentPoints(const Cloud& cloud, const std::string& name) {
+  if (cloud.cols() == 0) return "";
+  const Eigen::Vector3d spread = cloud.rowwise().maxCoeff() - cloud.rowwise().minCoeff();
+  const double magnitude = cloud.cwiseAbs().maxCoeff();
+  if (spread.maxCoeff() > 16.0 * std::numeric_limits<float>::epsilon() * magnitude) return "";
+  return "every point of the " + name + " (" + std::to_string(cloud.cols()) +
+         " after the filters) is at the same place: there is no shape to register";
 }
 
 }  // namespace pcr_pro
