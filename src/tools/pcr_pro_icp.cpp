@@ -1,4 +1,6 @@
 // pcr_pro_icp: register two point clouds (command line, result YAML and exit statuses: docs/FORMATS.md).
+#include <cmath>
+#include <exception>
 #include <iostream>
 #include <sstream>
 
@@ -23,7 +25,22 @@ pcr_pro::Sim3 parseInitial(const std::string& text) {
   std::istringstream in(text);
   Eigen::Matrix4d m;
   for (int i = 0; i < 16; ++i) {
-    if (!(in >> m(i / 4, i % 4))) throw pcr_pro::tools::UsageError("--initial: expected 16 numbers (row-major 4x4)");
+    std::string token;
+    if (!(in >> token)) {
+      throw pcr_pro::tools::UsageError("--initial: expected 16 numbers (row-major 4x4), got " + std::to_string(i));
+    }
+    std::size_t used = 0;
+    double value = 0.0;
+    try {
+      value = std::stod(token, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used != token.size() || !std::isfinite(value)) {
+      throw pcr_pro::tools::UsageError("--initial: number " + std::to_string(i + 1) + " is '" + token +
+                                       "', not a finite number");
+    }
+    m(i / 4, i % 4) = value;
   }
   std::string extra;
   if (in >> extra) throw pcr_pro::tools::UsageError("--initial: more than 16 numbers");

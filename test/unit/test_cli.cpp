@@ -95,6 +95,14 @@ TEST(Cli, BadUsage) {
   EXPECT_EQ(runIcp("--source " + kGood).status, 2);
   EXPECT_EQ(runIcp("--source " + kGood + " --target " + kGood + " --bogus").status, 2);
   EXPECT_EQ(runIcp("--source " + kGood + " --target " + kGood + " --initial \"1 2 3\"").status, 2);
+  // A token that is not a number is named, with its place (it used to read as "expected 16 numbers").
+  const CliRun nan_entry =
+      runIcp("--source " + kGood + " --target " + kGood + " --initial \"1 0 0 nan 0 1 0 0 0 0 1 0 0 0 0 1\"");
+  EXPECT_EQ(nan_entry.status, 2);
+  EXPECT_NE(nan_entry.err.find("--initial: number 4 is 'nan', not a finite number"), std::string::npos) << nan_entry.err;
+  EXPECT_NE(runIcp("--source " + kGood + " --target " + kGood + " --initial \"1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1x\"")
+                .err.find("number 16 is '1x'"),
+            std::string::npos);
   const fs::path cfg = tempFile("bad.yaml", "icp:\n  stop:\n    max_iterations: -1\n");
   expectInputError(runIcp("--source " + kGood + " --target " + kGood + " --config " + cfg.string()), cfg.string());
   EXPECT_EQ(runIcp("--help").status, 0);
