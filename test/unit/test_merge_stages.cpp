@@ -1665,8 +1665,9 @@ TEST(ErrorRule, RegisterCloudsAnswersNoPointsWithAStatusAndThrowsForCallersMista
 
 // A cloud whose points all sit at one place (a sensor that published one point many times, a
 // cloud collapsed by a wrong unit) has no shape: it is INVALID_INPUT naming the cloud, in the
-// offline registration and in the merge's, where the ICP used to run its 60 iterations on it and
-// answer ICP_NOT_CONVERGED. A small cloud, or one far from the origin, is not mistaken for one.
+// offline registration (whose ICP used to run its 60 iterations on it and answer
+// ICP_NOT_CONVERGED) and in the merge's. A small cloud, or one far from the origin, is not
+// mistaken for one.
 TEST(ErrorRule, ACloudWhosePointsAllCoincideIsInvalidInputNamingIt) {
   std::mt19937 rng(5);
   const Cloud cloud = test::syntheticScene(500, 4.0, rng);
