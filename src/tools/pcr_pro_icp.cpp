@@ -1,6 +1,6 @@
 // pcr_pro_icp: register two point clouds (command line, result YAML and exit statuses: docs/FORMATS.md).
 #include <cmath>
-#include <exception>
+#include <cstdlib>
 #include <iostream>
 #include <sstream>
 
@@ -29,14 +29,9 @@ pcr_pro::Sim3 parseInitial(const std::string& text) {
     if (!(in >> token)) {
       throw pcr_pro::tools::UsageError("--initial: expected 16 numbers (row-major 4x4), got " + std::to_string(i));
     }
-    std::size_t used = 0;
-    double value = 0.0;
-    try {
-      value = std::stod(token, &used);
-    } catch (const std::exception&) {
-      used = 0;
-    }
-    if (used != token.size() || !std::isfinite(value)) {
+    char* end = nullptr;
+    const double value = std::strtod(token.c_str(), &end);
+    if (end != token.c_str() + token.size() || !std::isfinite(value)) {
       throw pcr_pro::tools::UsageError("--initial: number " + std::to_string(i + 1) + " is '" + token +
                                        "', not a finite number");
     }
