@@ -134,7 +134,10 @@ DecodedKeyframe keyframeFromMsg(const pcr_pro::Keyframe& msg) {
   out.keyframe.image = greyImageFromMsg(msg.image, "image");
   if (out.keyframe.image.cols != out.camera.width || out.keyframe.image.rows != out.camera.height) {
     fail("image", "size " + str(out.keyframe.image.cols) + "x" + str(out.keyframe.image.rows) +
-                      " != camera_info size " + str(out.camera.width) + "x" + str(out.camera.height));
+                      " != camera_info size " + str(out.camera.width) + "x" + str(out.camera.height) +
+                      (msg.camera_info.binning_x > 1 || msg.camera_info.binning_y > 1 || msg.camera_info.roi.width > 0
+                           ? " (its roi at its binning)"
+                           : ""));
   }
   out.keyframe.pose = sim3FromPose(msg.pose, msg.scale);
   const bool has_depth = msg.depth.width > 0 || msg.depth.height > 0 || !msg.depth.data.empty();

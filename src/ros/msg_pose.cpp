@@ -5,6 +5,7 @@
 #include <ros/time.h>
 
 #include <algorithm>
+#include <cstdint>
 #include <mutex>
 #include <vector>
 
@@ -61,13 +62,6 @@ PinholeCamera cameraFromMsg(const sensor_msgs::CameraInfo& msg) {
                             "x" + str(msg.height));
   }
   if (const auto problem = implausibleIntrinsics(c)) fail(field, problem->first + ": " + problem->second);
-  if (msg.binning_x > 1 || msg.binning_y > 1) {
-    fail("camera_info.binning", "binning " + str(msg.binning_x) + "x" + str(msg.binning_y) + " is not supported (0 or 1)");
-  }
-  const auto& roi = msg.roi;
-  const bool full_roi = (roi.width == 0 && roi.height == 0 && roi.x_offset == 0 && roi.y_offset == 0) ||
-                        (roi.x_offset == 0 && roi.y_offset == 0 && roi.width == msg.width && roi.height == msg.height);
-  if (!full_roi) fail("camera_info.roi", "a region of interest is not supported (the full image only)");
   if (!has_p) {
     for (std::size_t i = 0; i < msg.D.size(); ++i) {
       if (msg.D[i] != 0.0) {
@@ -77,6 +71,44 @@ PinholeCamera cameraFromMsg(const sensor_msgs::CameraInfo& msg) {
       }
     }
   }
+  // Binning and a region of interest (REP 104): K and P are the full sensor's, and the image is
+  // the window roi (in full-resolution pixels; all zero = the whole sensor) at 1 / binning of its
+  // size. The image's own intrinsics are then fx / bx, cx' = (cx - x_offset) / bx and the same in
+  // y, as image_geometry's PinholeCameraModel takes them (without the half-pixel shift an averaging
+  // bin makes: a quarter pixel at binning 2).
+  const auto& roi = msg.roi;
+  const bool no_roi = roi.x_offset == 0 && roi.y_offset == 0 &&
+                      ((roi.width == 0 && roi.height == 0) || (roi.width == msg.width && roi.height == msg.height));
+  if (!no_roi) {
+    if (roi.width == 0 || roi.height == 0 || std::uint64_t{roi.x_offset} + roi.width > msg.width ||
+        std::uint64_t{roi.y_offset} + roi.height > msg.height) {
+      fail("camera_info.roi", "x_offset " + str(roi.x_offset) + ", y_offset " + str(roi.y_offset) + ", " +
+                                  str(roi.width) + "x" + str(roi.height) + " is not a window of the " +
+                                  str(msg.width) + "x" + str(msg.height) + " image");
+    }
+    // A window of the raw image is that window of the rectified one only where rectifying moves no
+    // pixel: no distortion, R the identity and P's pinhole part equal to K.
+    const bool identity_rectification =
+        std::all_of(msg.D.begin(), msg.D.end(), [](double v) { return v == 0.0; }) &&
+        (!has_p || (msg.R == sensor_msgs::CameraInfo::_R_type{1, 0, 0, 0, 1, 0, 0, 0, 1} && msg.P[0] == msg.K[0] &&
+                    msg.P[2] == msg.K[2] && msg.P[5] == msg.K[4] && msg.P[6] == msg.K[5]));
+    if (!identity_rectification) {
+      fail("camera_info.roi", "a region of interest of a rectified image whose rectification moves pixels "
+                              "(distortion, R or P other than K) is not supported: send the full image");
+    }
+  }
+  const std::uint32_t bx = std::max<std::uint32_t>(1, msg.binning_x), by = std::max<std::uint32_t>(1, msg.binning_y);
+  const std::uint32_t window_width = no_roi ? msg.width : roi.width, window_height = no_roi ? msg.height : roi.height;
+  if (bx > window_width || by > window_height) {
+    fail("camera_info.binning", "binning " + str(bx) + "x" + str(by) + " is larger than the " + str(window_width) +
+                                    "x" + str(window_height) + " image");
+  }
+  c.fx /= bx;
+  c.fy /= by;
+  c.cx = (c.cx - (no_roi ? 0.0 : roi.x_offset)) / bx;
+  c.cy = (c.cy - (no_roi ? 0.0 : roi.y_offset)) / by;
+  c.width = static_cast<int>(window_width / bx);
+  c.height = static_cast<int>(window_height / by);
   if (!c.valid()) fail("camera_info", "invalid pinhole camera");
   return c;
 }

@@ -332,6 +332,60 @@ TEST(Conversions, RectifiedImagesTakeTheirIntrinsicsFromP) {
   EXPECT_EQ(back.cx, truth.cx);
 }
 
+// Binning and a region of interest (REP 104): camera_info's K, P, width and height are the full
+// sensor's, roi is a window of it in full-resolution pixels and the image is that window at
+// 1 / binning of its size. The image's intrinsics are then (f / b, (c - offset) / b), as
+// image_geometry takes them; sent so, a keyframe converts to the camera it was taken with.
+TEST(Conversions, BinnedAndWindowedImagesTakeTheirIntrinsicsFromTheWindow) {
+  const AgentMap agent = generatedAgent();
+  const PinholeCamera& truth = agent.camera;
+  const auto sent = [&](int binning, int x_offset, int y_offset, int margin_x, int margin_y) {
+    pcr_pro::Keyframe msg = keyframeToMsg(agent.keyframes.front(), truth, "", ros::Time(), false);
+    sensor_msgs::CameraInfo& ci = msg.camera_info;
+    const int b = std::max(1, binning);  // 0 means 1
+    const double fx = b * truth.fx, fy = b * truth.fy;
+    const double cx = b * truth.cx + x_offset, cy = b * truth.cy + y_offset;
+    ci.K = {fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0};
+    ci.P = {fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0};
+    ci.binning_x = ci.binning_y = static_cast<std::uint32_t>(binning);
+    ci.width = static_cast<std::uint32_t>(b * truth.width + x_offset + margin_x);
+    ci.height = static_cast<std::uint32_t>(b * truth.height + y_offset + margin_y);
+    if (x_offset || y_offset || margin_x || margin_y) {
+      ci.roi.x_offset = static_cast<std::uint32_t>(x_offset);
+      ci.roi.y_offset = static_cast<std::uint32_t>(y_offset);
+      ci.roi.width = static_cast<std::uint32_t>(b * truth.width);
+      ci.roi.height = static_cast<std::uint32_t>(b * truth.height);
+    }
+    return msg;
+  };
+  const auto expectTruth = [&](const pcr_pro::Keyframe& msg, const char* what) {
+    const PinholeCamera c = keyframeFromMsg(msg).camera;
+    EXPECT_DOUBLE_EQ(c.fx, truth.fx) << what;
+    EXPECT_DOUBLE_EQ(c.fy, truth.fy) << what;
+    EXPECT_DOUBLE_EQ(c.cx, truth.cx) << what;
+    EXPECT_DOUBLE_EQ(c.cy, truth.cy) << what;
+    EXPECT_EQ(c.width, truth.width) << what;
+    EXPECT_EQ(c.height, truth.height) << what;
+  };
+  expectTruth(sent(2, 0, 0, 0, 0), "binning 2");
+  expectTruth(sent(1, 40, 20, 60, 40), "a window");
+  expectTruth(sent(2, 80, 40, 120, 80), "a window at binning 2");
+  expectTruth(sent(0, 0, 0, 0, 0), "binning 0 (= 1)");
+  // Without P (the raw image, D zero) the window is taken from K alike.
+  pcr_pro::Keyframe raw = sent(2, 80, 40, 120, 80);
+  std::fill(raw.camera_info.P.begin(), raw.camera_info.P.end(), 0.0);
+  expectTruth(raw, "a window of the raw image at binning 2");
+  // A keyframe image that is not the window's binned size is refused, naming the sizes.
+  pcr_pro::Keyframe wrong = sent(2, 0, 0, 0, 0);
+  wrong.camera_info.binning_x = wrong.camera_info.binning_y = 4;
+  try {
+    keyframeFromMsg(wrong);
+    ADD_FAILURE() << "an image of twice the binned size was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("camera_info size"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Conversions, CloudRoundTripAndValidation) {
   const AgentMap agent = generatedAgent();
   const sensor_msgs::PointCloud2 msg = cloudToMsg(agent.cloud, "agent_b/map", ros::Time(1.0));

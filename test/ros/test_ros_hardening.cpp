@@ -165,8 +165,13 @@ TEST(BadKeyframes, ImagesCamerasAndPosesAreRefusedNamingTheField) {
   rejected([&](auto& m) { without_p(m); m.camera_info.D = {0.0, 0.1}; }, {"camera_info.D", "P is all zero"},
            "distortion without P");
   rejected([](auto& m) { m.camera_info.width = 0; }, {"camera_info", "size"}, "zero camera size");
-  rejected([](auto& m) { m.camera_info.binning_x = 2; }, {"camera_info.binning"}, "binning");
-  rejected([](auto& m) { m.camera_info.roi.width = 320; m.camera_info.roi.height = 240; }, {"camera_info.roi"}, "roi");
+  // (binning and a window of the sensor are taken as REP 104 says: test_msg_conversion)
+  rejected([](auto& m) { m.camera_info.binning_x = 2; }, {"camera_info size"}, "binning with the full-size image");
+  rejected([](auto& m) { m.camera_info.binning_y = 100000; }, {"camera_info.binning", "larger than"}, "binning");
+  rejected([](auto& m) { m.camera_info.roi.x_offset = 400; m.camera_info.roi.width = 320; m.camera_info.roi.height = 240; },
+           {"camera_info.roi", "not a window"}, "roi beyond the image");
+  rejected([](auto& m) { m.camera_info.roi.width = 320; m.camera_info.roi.height = 240; m.camera_info.D = {0.1}; },
+           {"camera_info.roi", "rectification moves pixels"}, "roi of a rectified distorted image");
   // poses
   rejected([](auto& m) { m.pose.orientation = geometry_msgs::Quaternion(); }, {"pose.orientation"}, "zero quaternion");
   rejected([](auto& m) { m.pose.orientation.w = NAN; }, {"pose.orientation"}, "NaN quaternion");
