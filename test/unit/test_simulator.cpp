@@ -816,8 +816,18 @@ TEST(SimConfig, ShippedConfigIsTheDefaultsAndRoundTrips) {
   o.per_agent[1].scale = 0.1;
   o.per_agent[1].bend_deg = -2.5;
   o.per_agent[1].idepth_noise = 0.03;
+  o.per_agent[1].camera = PinholeCamera{300.0, 301.5, 199.5, 149.25, 400, 300};
   const std::string yaml = simulatorConfigYaml(o);
   EXPECT_EQ(simulatorConfigYaml(parseSimulatorConfig(yaml, "test")), yaml);
+  // An agent's camera takes the keys it does not give from the top-level camera.
+  const SimulatorOptions partial = parseSimulatorConfig(
+      "camera: {fx: 600, fy: 600, cx: 159.5, cy: 119.5, width: 320, height: 240}\nper_agent: [{}, {camera: {fx: 400, fy: 400}}]",
+      "test");
+  EXPECT_FALSE(partial.per_agent[0].camera.has_value());
+  ASSERT_TRUE(partial.per_agent[1].camera.has_value());
+  EXPECT_EQ(partial.per_agent[1].camera->fx, 400.0);
+  EXPECT_EQ(partial.per_agent[1].camera->cx, 159.5);
+  EXPECT_EQ(partial.per_agent[1].camera->width, 320);
 }
 
 TEST(SimConfig, DemoConfigChangesOnlyTheFieldsItMeansTo) {
@@ -884,6 +894,8 @@ TEST(SimConfig, BadConfigsNameTheKey) {
       {"per_agent: [{name: a/b}]", "per_agent[0].name"},
       {"per_agent: [{name: x}, {name: x}]", "per_agent[1].name"},
       {"per_agent: [{}, {idepth_noise: -0.01}]", "per_agent[1].idepth_noise: must be >= 0 and finite, got -0.01"},
+      {"per_agent: [{}, {camera: {width: 8}}]", "per_agent[1].camera: fx, fy must be finite and > 0, width and height in [16, 4096]"},
+      {"per_agent: [{camera: {fz: 8}}]", "per_agent[0].camera.fz"},
       {"world: {texture: {texel: 0}}", "world.texture.texel"},
       {"agents: two", "agents"},
       {"camera: {width: 0}", "camera"},
@@ -1018,9 +1030,7 @@ TEST(SimMergeDrift, DriftPairRecoversTheOverlapTruth) {
 }
 
 // At the demo's 50 % overlap the keyframe stage (SIFT, relative pose, Kalman scale) is within the
-// rendering noise; the full merge is below (DISABLED: the current ICP stage, a trimmed ICP with
-// trim ratio 0.8 > the overlap and no distance gate, pulls the scale to its 0.5 clamp, see the
-// simulator's report). Enable it when the ICP is overlap-aware.
+// rendering noise, and so is the full merge (below).
 TEST(SimMergeHalf, KeyframeGuessAtHalfOverlapIsWithinTheNoise) {
   const Simulation sim = simulate(mergeOptions(0.5));
   std::srand(1);
@@ -1043,6 +1053,44 @@ TEST(SimMergeHalf, FullMergeAtHalfOverlapIsWithinTheNoise) {
   ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
   const NoiseBound bound = noiseBound(sim, 0);
   const MergeErrors e = errorsOf(*r.report.transform, sim.pair(0, 1).target_source, sim.agents[1].map.cloud);
+  EXPECT_LT(e.rotation_deg * kDeg, bound.point_noise / bound.radius);
+  EXPECT_LT(e.scale, bound.point_noise / bound.radius);
+  EXPECT_LT(e.displacement, bound.point_noise);
+}
+
+// per_agent[i].camera: each agent renders, samples and maps through its own camera, and the truth
+// sees through each observer's. agent_b here has 400 x 300 pixels and a 67 deg field of view
+// (agent_a: 640 x 480, 62 deg). agent_a's map is the one it has with the shared camera, and the
+// two maps merge within the rendering noise, as at equal cameras (FullMergeAtHalfOverlap...).
+TEST(SimCamera, EachAgentTakesItsOwnCamera) {
+  SimulatorOptions o = mergeOptions(0.5);
+  o.agents = 2;
+  const Simulation shared = simulate(o);
+  const PinholeCamera own{300.0, 300.0, 199.5, 149.5, 400, 300};
+  o.per_agent.resize(2);
+  o.per_agent[1].camera = own;
+  const Simulation sim = simulate(o);
+  ASSERT_EQ(sim.agents[1].map.camera.width, own.width);
+  EXPECT_EQ(sim.agents[1].map.camera.fx, own.fx);
+  EXPECT_EQ(sim.agents[0].map.camera.width, o.camera.width);
+  for (const MapKeyframe& k : sim.agents[1].map.keyframes) {
+    EXPECT_EQ(k.image.cols, own.width);
+    EXPECT_EQ(k.depth.rows, own.height);
+  }
+  EXPECT_EQ(sim.agents[1].keyframes.front().semi_dense.idepth.cols, own.width);
+  ASSERT_EQ(shared.agents[0].map.cloud.cols(), sim.agents[0].map.cloud.cols());
+  EXPECT_EQ((shared.agents[0].map.cloud - sim.agents[0].map.cloud).cwiseAbs().maxCoeff(), 0.0);
+  // The layout still reaches the requested overlap (OverlapIsControllable's tolerance).
+  const SimPairTruth& truth = sim.pair(0, 1);
+  EXPECT_NEAR(truth.overlap_fraction, o.layout.overlap, 0.08);
+  std::srand(1);
+  const MergeResult r = mergeMaps(sim.agents[1].map, sim.agents[0].map, MergeRequest(), MergeOptions());
+  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
+  const NoiseBound bound = noiseBound(sim, 0);
+  const MergeErrors e = errorsOf(*r.report.transform, truth.target_source, sim.agents[1].map.cloud);
+  std::printf("agent_b 400x300, 67 deg; overlap %.2f: merge %.3f deg, %.4f %%, %.4f; bound %.3f deg, %.3f %%, %.4f\n",
+              truth.overlap_fraction, e.rotation_deg, 100 * e.scale, e.displacement,
+              bound.point_noise / bound.radius / kDeg, 100 * bound.point_noise / bound.radius, bound.point_noise);
   EXPECT_LT(e.rotation_deg * kDeg, bound.point_noise / bound.radius);
   EXPECT_LT(e.scale, bound.point_noise / bound.radius);
   EXPECT_LT(e.displacement, bound.point_noise);

@@ -119,6 +119,9 @@ struct AgentOptions {
   /// whose maps are not equally noisy (another camera, farther walls, weaker texture), as real
   /// pairs of maps seldom are.
   std::optional<double> idepth_noise;
+  /// This agent's camera (YAML block `camera` of its entry, keys not given taken from the top-level
+  /// `camera`): robots of a team seldom carry the same one. Unset: SimulatorOptions::camera.
+  std::optional<PinholeCamera> camera;
 };
 
 /// Everything simulate() needs. Defaults: 2 agents, 50 % overlap, 30 deg view-angle
@@ -127,7 +130,8 @@ struct SimulatorOptions {
   std::uint64_t seed = 1;
   int agents = 2;                   ///< number of agents [-], in [1, 26]
   std::vector<AgentOptions> per_agent;  ///< per-agent settings, agent i = entry i (at most `agents` entries)
-  /// Camera of every agent: 640x480, 525 px focal length (a 62 deg horizontal field of view).
+  /// Camera of every agent that does not set its own (AgentOptions::camera): 640x480, 525 px focal
+  /// length (a 62 deg horizontal field of view).
   PinholeCamera camera{525.0, 525.0, 319.5, 239.5, 640, 480};
   WorldOptions world;
   RenderOptions render;

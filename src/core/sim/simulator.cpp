@@ -41,6 +41,7 @@ struct ResolvedAgent {
   AgentPath path;
   double scale_drift = 0.0, bend_deg = 0.0;
   double idepth_noise = 0.0;
+  PinholeCamera camera;
   bool azimuth_given = false;
 };
 
@@ -69,6 +70,7 @@ std::vector<ResolvedAgent> resolveAgents(const SimulatorOptions& o) {
     r.scale_drift = a.scale_drift.value_or(o.drift.scale_drift);
     r.bend_deg = a.bend_deg.value_or(o.drift.bend_deg);
     r.idepth_noise = a.idepth_noise.value_or(o.map.semi_dense.idepth_noise);
+    r.camera = a.camera.value_or(o.camera);
     out.push_back(r);
   }
   return out;
@@ -101,9 +103,11 @@ bool sees(const PinholeCamera& cam, const Sim3& pose, const cv::Mat& depth, cons
 }
 
 // Fraction of the surface seen by `source` poses that `target` poses see too (every pixel of
-// low-resolution depth renders).
-double lowResolutionOverlap(const World& world, const PinholeCamera& low, const std::vector<cv::Mat>& target_depth,
-                            const std::vector<Sim3>& target_poses, const std::vector<Sim3>& source_poses) {
+// low-resolution depth renders; `low` the source's low-resolution camera, `target_low` the
+// target's, in which target_depth was rendered).
+double lowResolutionOverlap(const World& world, const PinholeCamera& low, const PinholeCamera& target_low,
+                            const std::vector<cv::Mat>& target_depth, const std::vector<Sim3>& target_poses,
+                            const std::vector<Sim3>& source_poses) {
   RenderOptions ro;
   ro.supersampling = 1;
   ro.image_noise = 0.0;
@@ -117,7 +121,7 @@ double lowResolutionOverlap(const World& world, const PinholeCamera& low, const 
         const Eigen::Vector3d x = pose.apply(Eigen::Vector3d(z * (c - low.cx) / low.fx, z * (r - low.cy) / low.fy, z));
         ++total;
         for (std::size_t j = 0; j < target_poses.size(); ++j) {
-          if (sees(low, target_poses[j], target_depth[j], x, 0.05)) {
+          if (sees(target_low, target_poses[j], target_depth[j], x, 0.05)) {
             ++seen;
             break;
           }
@@ -134,18 +138,18 @@ void layoutSecondAgent(const World& world, const SimulatorOptions& o, std::vecto
   if (agents->size() < 2 || (*agents)[1].azimuth_given) return;
   ResolvedAgent& b = (*agents)[1];
   const ResolvedAgent& a = (*agents)[0];
-  const PinholeCamera low = lowResolution(o.camera);
+  const PinholeCamera low_a = lowResolution(a.camera), low_b = lowResolution(b.camera);
   RenderOptions ro;
   ro.supersampling = 1;
   ro.image_noise = 0.0;
   const PathKeyframes pa = sim_detail::keyframePath(world, o.trajectory, a.path, "per_agent[0]");
   std::vector<cv::Mat> depth_a;
-  for (const Sim3& p : pa.poses) depth_a.push_back(render(world, low, p, ro, 0).depth);
+  for (const Sim3& p : pa.poses) depth_a.push_back(render(world, low_a, p, ro, 0).depth);
   auto overlapAt = [&](double offset) {
     AgentPath path = b.path;
     path.azimuth_start_deg = a.path.azimuth_start_deg + offset;
     const PathKeyframes pb = sim_detail::keyframePath(world, o.trajectory, path, "per_agent[1]");
-    return lowResolutionOverlap(world, low, depth_a, pa.poses, pb.poses);
+    return lowResolutionOverlap(world, low_b, low_a, depth_a, pa.poses, pb.poses);
   };
   double lo = 0.0, hi = a.path.azimuth_span_deg + 120.0;
   if (overlapAt(lo) <= o.layout.overlap) {
@@ -163,7 +167,7 @@ void layoutSecondAgent(const World& world, const SimulatorOptions& o, std::vecto
 // its map pose) to the agent.
 void addCloudPoints(const SimulatorOptions& o, int k, std::vector<Eigen::Vector3d>* map_points, SimAgent* agent) {
   const SimKeyframe& kf = agent->keyframes[static_cast<std::size_t>(k)];
-  const PinholeCamera& cam = o.camera;
+  const PinholeCamera& cam = agent->map.camera;
   std::mt19937_64 rng(subSeed(o.seed, kCloudStream + static_cast<std::uint64_t>(kf.id)));
   std::vector<Eigen::Vector3d> world;
   Eigen::Index i = 0;  // index into semi_dense.points: kept pixels in row-major order
@@ -205,7 +209,7 @@ SimAgent makeAgent(const World& world, const SimulatorOptions& o, const Resolved
       sim_detail::driftPoses(path, agent.world_to_map, r.scale_drift, r.bend_deg, o.drift,
                              subSeed(o.seed, kPoseNoiseStream + static_cast<std::uint64_t>(index)));
   agent.map.frame_id = r.name + "/map";
-  agent.map.camera = o.camera;
+  agent.map.camera = r.camera;
   agent.cloud_world = Cloud(3, 0);
   std::vector<Eigen::Vector3d> map_points;
   for (std::size_t k = 0; k < path.poses.size(); ++k) {
@@ -216,14 +220,14 @@ SimAgent makeAgent(const World& world, const SimulatorOptions& o, const Resolved
     kf.map_pose = poses.map[k];
     kf.motion = path.motion[k];
     auto t = Clock::now();
-    RenderedView view = render(world, o.camera, kf.true_pose, o.render, subSeed(o.seed, kRenderStream + kf.id));
+    RenderedView view = render(world, r.camera, kf.true_pose, o.render, subSeed(o.seed, kRenderStream + kf.id));
     timings->render += msSince(t);
     ++timings->rendered;
     t = Clock::now();
     kf.image = view.image;
     kf.depth = view.depth;
     kf.semi_dense =
-        sampleSemiDense(kf.image, kf.depth, o.camera, semi_dense, subSeed(o.seed, kSemiDenseStream + kf.id));
+        sampleSemiDense(kf.image, kf.depth, r.camera, semi_dense, subSeed(o.seed, kSemiDenseStream + kf.id));
     // LSD normalises the mean of its (estimated) inverse depth to 1.
     const cv::Scalar mean = cv::mean(kf.semi_dense.idepth, kf.semi_dense.idepth > 0.0f);
     kf.lsd_scale = mean[0] > 0.0 ? 1.0 / mean[0] : 1.0;
@@ -261,7 +265,7 @@ SimAgent makeAgent(const World& world, const SimulatorOptions& o, const Resolved
 // camera point mapped by its own keyframe's map pose) and in the observer's map (the same world
 // point mapped through the observer keyframe that sees it nearest its image centre), appended to
 // owner_map / observer_map; seen[k][j] counts owner keyframe k's points seen by observer keyframe j.
-void coVisiblePoints(const SimulatorOptions& o, const SimAgent& observer, const SimAgent& owner,
+void coVisiblePoints(const SimAgent& observer, const SimAgent& owner,
                      std::vector<Eigen::Vector3d>* owner_map, std::vector<Eigen::Vector3d>* observer_map,
                      std::vector<std::vector<long>>* seen, std::vector<long>* per_owner_keyframe) {
   const std::size_t nt = observer.keyframes.size(), ns = owner.keyframes.size();
@@ -278,7 +282,7 @@ void coVisiblePoints(const SimulatorOptions& o, const SimAgent& observer, const 
       const SimKeyframe& kt = observer.keyframes[j];
       double d = 0.0;
       // 2 %: far below the depth step between a box face and the wall behind it.
-      if (!sees(o.camera, kt.true_pose, kt.depth, x, 0.02, &d)) continue;
+      if (!sees(observer.map.camera, kt.true_pose, kt.depth, x, 0.02, &d)) continue;
       ++(*seen)[k][j];
       if (d < best) best = d, best_j = j;
     }
@@ -304,9 +308,9 @@ SimPairTruth pairTruth(const SimulatorOptions& o, const SimAgent& target, const 
   std::vector<std::vector<long>> counts, reverse_counts;
   std::vector<long> per_source_keyframe, per_target_keyframe;
   std::vector<Eigen::Vector3d> src, dst;
-  coVisiblePoints(o, target, source, &src, &dst, &counts, &per_source_keyframe);
+  coVisiblePoints(target, source, &src, &dst, &counts, &per_source_keyframe);
   const std::size_t source_points = src.size();
-  coVisiblePoints(o, source, target, &dst, &src, &reverse_counts, &per_target_keyframe);
+  coVisiblePoints(source, target, &dst, &src, &reverse_counts, &per_target_keyframe);
   const Eigen::Index n = source.cloud_world.cols();
   t.points = static_cast<int>(src.size());
   t.overlap_fraction = n > 0 ? static_cast<double>(source_points) / static_cast<double>(n) : 0.0;

@@ -125,6 +125,12 @@ void validateDrift(const std::string& prefix, double scale_drift, double bend_de
   range(prefix + "bend_deg", bend_deg, -45.0, 45.0);
 }
 
+void validateCamera(const PinholeCamera& c, const std::string& key) {
+  if (!c.valid() || c.width > 4096 || c.height > 4096 || c.width < 16 || c.height < 16) {
+    throw InputError(key + ": fx, fy must be finite and > 0, width and height in [16, 4096]");
+  }
+}
+
 void validateAgent(const AgentOptions& a, std::size_t i) {
   const std::string f = "per_agent[" + std::to_string(i) + "].";
   if (!a.name.empty()) {
@@ -142,6 +148,7 @@ void validateAgent(const AgentOptions& a, std::size_t i) {
   if (a.idepth_noise && !(*a.idepth_noise >= 0.0 && std::isfinite(*a.idepth_noise))) {
     throw InputError(f + "idepth_noise: must be >= 0 and finite, got " + num(*a.idepth_noise));
   }
+  if (a.camera) validateCamera(*a.camera, f + "camera");
 }
 
 void optionalDouble(Block* b, const std::string& key, std::optional<double>* v) {
@@ -163,7 +170,7 @@ void bindBlock(Block* parent, const std::string& key, O* o) {
   bindBlock(parent, key, o, [](Block*) {});
 }
 
-void loadAgents(Block* top, std::vector<AgentOptions>* agents) {
+void loadAgents(Block* top, const PinholeCamera& camera, std::vector<AgentOptions>* agents) {
   const YAML::Node node = top->child("per_agent");
   if (!node || node.IsNull()) return;
   top->reader().list(node, "per_agent", "agents");
@@ -178,9 +185,19 @@ void loadAgents(Block* top, std::vector<AgentOptions>* agents) {
     optionalDouble(&b, "scale_drift", &a.scale_drift);
     optionalDouble(&b, "bend_deg", &a.bend_deg);
     optionalDouble(&b, "idepth_noise", &a.idepth_noise);
+    if (b.child("camera")) {
+      PinholeCamera own = camera;  // keys not given: the top-level camera's
+      bindBlock(&b, "camera", &own);
+      a.camera = own;
+    }
     b.finish();
     agents->push_back(a);
   }
+}
+
+std::string cameraYaml(const PinholeCamera& c) {
+  return "{fx: " + num(c.fx) + ", fy: " + num(c.fy) + ", cx: " + num(c.cx) + ", cy: " + num(c.cy) +
+         ", width: " + std::to_string(c.width) + ", height: " + std::to_string(c.height) + "}";
 }
 
 void optionalYaml(std::ostringstream& y, const char* key, const std::optional<double>& v) {
@@ -205,10 +222,7 @@ void validate(const SimulatorOptions& o) {
     }
     if (!names.insert(name).second) throw InputError("per_agent[" + std::to_string(i) + "].name: duplicate agent name " + name);
   }
-  const PinholeCamera& c = o.camera;
-  if (!c.valid() || c.width > 4096 || c.height > 4096 || c.width < 16 || c.height < 16) {
-    throw InputError("camera: fx, fy must be finite and > 0, width and height in [16, 4096]");
-  }
+  validateCamera(o.camera, "camera");
   validate(o.world);
   validate(o.render);
   validateTrajectory(o.trajectory, o.world);
@@ -236,7 +250,7 @@ SimulatorOptions parseSimulatorConfig(const std::string& text, const std::string
     bindBlock(top, "layout", &o.layout);
     bindBlock(top, "drift", &o.drift);
     bindBlock(top, "map", &o.map, [&o](Block* map) { bindBlock(map, "semi_dense", &o.map.semi_dense); });
-    loadAgents(top, &o.per_agent);
+    loadAgents(top, o.camera, &o.per_agent);
   });
   config_detail::validateIn(o, origin);
   return o;
@@ -252,8 +266,7 @@ std::string simulatorConfigYaml(const SimulatorOptions& o) {
   const TrajectoryOptions& t = o.trajectory;
   const SemiDenseOptions& s = o.map.semi_dense;
   y << "seed: " << o.seed << "\nagents: " << o.agents << "\nmin_overlap: " << num(o.min_overlap) << "\n"
-    << "camera: {fx: " << num(o.camera.fx) << ", fy: " << num(o.camera.fy) << ", cx: " << num(o.camera.cx)
-    << ", cy: " << num(o.camera.cy) << ", width: " << o.camera.width << ", height: " << o.camera.height << "}\n"
+    << "camera: " << cameraYaml(o.camera) << "\n"
     << "world:\n  room_length: " << num(w.room_length) << "\n  room_width: " << num(w.room_width)
     << "\n  room_height: " << num(w.room_height) << "\n  boxes: " << w.boxes << "\n  max_box_depth: " << num(w.max_box_depth)
     << "\n  max_wall_box_height: " << num(w.max_wall_box_height) << "\n  max_free_box_height: " << num(w.max_free_box_height)
@@ -292,6 +305,7 @@ std::string simulatorConfigYaml(const SimulatorOptions& o) {
       optionalYaml(y, "scale_drift", a.scale_drift);
       optionalYaml(y, "bend_deg", a.bend_deg);
       optionalYaml(y, "idepth_noise", a.idepth_noise);
+      if (a.camera) y << ", camera: " << cameraYaml(*a.camera);
       y << "}\n";
     }
   }
