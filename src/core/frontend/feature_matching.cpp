@@ -104,6 +104,15 @@ KeyframeFeatures extractFeatures(const cv::Mat& gray8, const FeatureMatchingOpti
   }
   cv::Ptr<cv::SIFT> sift = cv::SIFT::create(options.nfeatures, options.n_octave_layers, options.contrast_threshold,
                                             options.edge_threshold, options.sigma);
+  // OpenCV's SIFT doubles the image first with a resize that puts pixel x of the image at (x + 0.5)
+  // * 2 - 0.5 = 2x + 0.5 of the doubled one, and reports a keypoint found there at half its doubled
+  // coordinate: every keypoint lands a quarter pixel right of and below where it is, in the image
+  // SIFT ran on (opencv/opencv issue 23123; the "precise upscale" that removes it came after the
+  // OpenCV 4.6 of Debian 12 and is off by default). The same shift in both keyframes of a pair
+  // nearly cancels when their cameras are alike; with two different cameras it is a different angle
+  // in each, and on simulated maps of two cameras it made the keyframe estimate's 6-DoF NEES 5-32,
+  // over-confident (docs/DESIGN.md). Test: FeatureMatching.KeypointsHaveNoSubpixelBias.
+  constexpr float kSiftShift = 0.25f;
   if (options.image_scale < 1.0) {
     const cv::Size size(std::max(1, cvRound(gray8.cols * options.image_scale)),
                         std::max(1, cvRound(gray8.rows * options.image_scale)));
@@ -114,12 +123,13 @@ KeyframeFeatures extractFeatures(const cv::Mat& gray8, const FeatureMatchingOpti
     const float sx = static_cast<float>(gray8.cols) / static_cast<float>(size.width);
     const float sy = static_cast<float>(gray8.rows) / static_cast<float>(size.height);
     for (cv::KeyPoint& k : features.keypoints) {
-      k.pt.x = (k.pt.x + 0.5f) * sx - 0.5f;
-      k.pt.y = (k.pt.y + 0.5f) * sy - 0.5f;
+      k.pt.x = (k.pt.x - kSiftShift + 0.5f) * sx - 0.5f;
+      k.pt.y = (k.pt.y - kSiftShift + 0.5f) * sy - 0.5f;
       k.size *= 0.5f * (sx + sy);
     }
   } else {
     sift->detectAndCompute(gray8, cv::noArray(), features.keypoints, features.descriptors);
+    for (cv::KeyPoint& k : features.keypoints) k.pt -= cv::Point2f(kSiftShift, kSiftShift);
   }
   if (features.keypoints.empty()) features.descriptors.release();
   return features;
