@@ -1,7 +1,8 @@
 // Shared by the unit tests and the benchmarks: the synthetic room, the real car pair's ground
-// truth, and the errors of an estimated similarity against its truth.
+// truth, the errors of an estimated similarity against its truth, and its rotation's NEES.
 #pragma once
 
+#include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 
 #include <cmath>
@@ -12,6 +13,8 @@
 #include <string>
 
 #include "pcr_pro/geometry/sim3.h"
+#include "pcr_pro/geometry/similarity_fit.h"
+#include "pcr_pro/geometry/types.h"
 
 namespace pcr_pro {
 namespace test {
@@ -75,6 +78,15 @@ inline Errors errors(const Sim3& est, const Sim3& truth) {
   e.translation = (est.translation() - truth.translation()).norm();
   e.scale_rel = std::abs(est.scale() / truth.scale() - 1.0);
   return e;
+}
+
+/// The 3-DoF NEES of an estimate's rotation against a truth that is itself only good to
+/// truth_sd [rad] per axis: the rotation block of the estimate's 6-DoF covariance (similarity_fit.h's
+/// convention, about the estimate) plus truth_sd² on each axis.
+inline double rotationNees(const Sim3& estimate, const Sim3& truth, const Matrix6d& covariance, double truth_sd) {
+  const Eigen::Vector3d r = similarityDifference(estimate, truth).segment<3>(3);
+  const Eigen::Matrix3d c = covariance.block<3, 3>(3, 3) + truth_sd * truth_sd * Eigen::Matrix3d::Identity();
+  return r.dot(c.ldlt().solve(r));
 }
 
 }  // namespace test

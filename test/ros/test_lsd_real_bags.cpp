@@ -32,6 +32,7 @@
 #include "pcr_pro/registration/projective_registration.h"
 #include "pcr_pro/ros/msg_conversion.h"
 #include "common/data_dir.h"
+#include "common/geometry_checks.h"
 #include "common/yaml_sim3.h"
 
 namespace pcr_pro {
@@ -156,17 +157,10 @@ TEST_F(RealLsdSlam, BothDirectionsMergeNearTheOverlapTruth) {
     // converged and was combined with the keyframe estimate, 3.28 deg off with a rotation 1-sigma
     // of 3.3 / 6.3 / 2.7 deg per axis. (The ICP slides on these maps: see the next test.)
     EXPECT_LT(e.rotation_deg, 6.0) << name;
-    {
-      const Eigen::Matrix<double, 6, 1> d =
-          similarityDifference(*result->report.transform, inverse ? m.truth.inverse() : m.truth).head<6>();
-      const double truth_sd = 1.5 * M_PI / 180.0;
-      const Eigen::Matrix3d c =
-          result->report.covariance->block<3, 3>(3, 3) + truth_sd * truth_sd * Eigen::Matrix3d::Identity();
-      const Eigen::Vector3d r = d.segment<3>(3);
-      const double nees = r.dot(c.ldlt().solve(r));
-      std::printf("%s: rotation NEES with the truth's accuracy %.2f\n", name, nees);
-      EXPECT_LT(nees, 11.34) << name;
-    }
+    const double nees = test::rotationNees(*result->report.transform, inverse ? m.truth.inverse() : m.truth,
+                                           *result->report.covariance, 1.5 * M_PI / 180.0);
+    std::printf("%s: rotation NEES with the truth's accuracy %.2f\n", name, nees);
+    EXPECT_LT(nees, 11.34) << name;
     EXPECT_LT(std::abs(std::exp(e.log_scale) - 1.0), 0.2) << name;
     // Within 3 standard deviations once the truth's own spread is allowed for: SOURCE.txt pins the
     // overlap's scale to about +-25 %, read here as two of its standard deviations.

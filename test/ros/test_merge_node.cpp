@@ -32,6 +32,7 @@
 #include "pcr_pro/EdgeHistory.h"
 #include "common/data_dir.h"
 #include "common/diagnostics_watcher.h"
+#include "common/geometry_checks.h"
 #include "common/lsd_bag_stream.h"
 #include "common/ros_test_main.h"
 #include "common/sim_worlds.h"
@@ -844,15 +845,10 @@ TEST(RealLsdBags, BothDirectionsMergeThroughTheNodeNearTheOverlapTruth) {
     // keypoint shift taken off), when a->b's ICP began to converge and be combined with the
     // keyframe estimate: 3.28 deg off with a rotation 1-sigma of up to 6.3 deg (test_lsd_real_bags).
     EXPECT_LT(rotation_deg, 6.0) << name;
-    {
-      const Eigen::Matrix<double, 7, 1> e =
-          similarityDifference(edge.target_source, reverse ? truth_ab.inverse() : truth_ab);
-      const double truth_rotation_sd = 1.5 * M_PI / 180.0;
-      const Eigen::Matrix3d c =
-          edge.covariance.block<3, 3>(3, 3) + truth_rotation_sd * truth_rotation_sd * Eigen::Matrix3d::Identity();
-      const Eigen::Vector3d er = e.segment<3>(3);
-      EXPECT_LT(er.dot(c.ldlt().solve(er)), 11.34) << name;
-    }
+    EXPECT_LT(test::rotationNees(edge.target_source, reverse ? truth_ab.inverse() : truth_ab, edge.covariance,
+                                 1.5 * M_PI / 180.0),
+              11.34)
+        << name;
     EXPECT_LT(std::abs(d.scale() - 1.0), 0.2) << name;
     EXPECT_LE(std::abs(log_scale), 3.0 * std::hypot(r.edge.scale_stddev, truth_sd)) << name;
     EXPECT_LT(r.edge.scale_stddev, 0.25) << name;

@@ -21,6 +21,7 @@
 #include "common/option_checks.h"
 #include "pcr_pro/frontend/descriptor_index.h"
 #include "pcr_pro/frontend/feature_matching.h"
+#include "pcr_pro/geometry/median.h"
 #include "pcr_pro/sim/simulator.h"
 
 namespace pcr_pro {
@@ -305,12 +306,6 @@ TEST(FeatureMatching, HalfScaleKeypointsAreInFullResolutionPixels) {
   EXPECT_GT(agree, static_cast<int>(0.9 * static_cast<double>(m.size())));
 }
 
-double medianOf(std::vector<double> v) {
-  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-  return v[v.size() / 2];
-}
-
 // The keypoints sit where the image structure is, without a sub-pixel shift of their own. Two
 // exact relations between images pin it down whatever SIFT's own noise: (1) pixel (u, v) of an
 // image taken at every other pixel (after a Gaussian of 1 px) is pixel (2u, 2v) of the original, so
@@ -372,12 +367,12 @@ TEST(FeatureMatching, KeypointsHaveNoSubpixelBias) {
       ASSERT_GT(my.size(), 100u) << name;
       std::printf("%s, image_scale %.2f: full - 2 half %+.3f %+.3f px (%zu); against the mirrored image %+.3f (%zu), "
                   "%+.3f px (%zu)\n",
-                  name.c_str(), scale, medianOf(dx), medianOf(dy), dx.size(), medianOf(mx), mx.size(), medianOf(my),
+                  name.c_str(), scale, upperMedian(dx), upperMedian(dy), dx.size(), upperMedian(mx), mx.size(), upperMedian(my),
                   my.size());
-      EXPECT_LT(std::abs(medianOf(dx)), 0.05) << name << " at image_scale " << scale;
-      EXPECT_LT(std::abs(medianOf(dy)), 0.05) << name << " at image_scale " << scale;
-      EXPECT_LT(std::abs(medianOf(mx)), 0.05) << name << " at image_scale " << scale;
-      EXPECT_LT(std::abs(medianOf(my)), 0.05) << name << " at image_scale " << scale;
+      EXPECT_LT(std::abs(upperMedian(dx)), 0.05) << name << " at image_scale " << scale;
+      EXPECT_LT(std::abs(upperMedian(dy)), 0.05) << name << " at image_scale " << scale;
+      EXPECT_LT(std::abs(upperMedian(mx)), 0.05) << name << " at image_scale " << scale;
+      EXPECT_LT(std::abs(upperMedian(my)), 0.05) << name << " at image_scale " << scale;
     }
   }
 }
