@@ -729,10 +729,10 @@ void MergeNode::mergeDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& s)
   s.add("auto_merge", options_.auto_merge.enabled ? "into " + options_.autoMergeTarget() : std::string("off"));
   if (const std::optional<MergeTiming>& t = merge_state_.timing) {
     // Where the last merge that ran the pipeline spent its wall time on the worker [ms].
-    char stages[200];
+    char stages[240];
     std::snprintf(stages, sizeof(stages), "features %.0f, relative_pose %.0f, scale %.0f, filters %.0f, icp %.0f, "
-                  "covariance %.0f", t->stages.features, t->stages.relative_pose, t->stages.scale, t->stages.filters,
-                  t->stages.icp, t->stages.covariance);
+                  "covariance %.0f, arbitration %.0f", t->stages.features, t->stages.relative_pose, t->stages.scale,
+                  t->stages.filters, t->stages.icp, t->stages.covariance, t->stages.arbitration);
     s.addf("last_merge_ms", "%.1f", t->total_ms);
     s.addf("last_maps_ms", "%.1f", t->maps_ms);
     s.addf("last_pipeline_ms", "%.1f", t->stages.total);

@@ -21,6 +21,9 @@ struct StageTimings {
   double filters = 0.0;
   double icp = 0.0;
   double covariance = 0.0;
+  /// merge only: the keyframe pairs' camp arbitration (pooling, refining and judging the camps
+  /// when the pairs split); the stages above are the first pass's alone
+  double arbitration = 0.0;
   double total = 0.0;
 };
 

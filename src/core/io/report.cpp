@@ -98,7 +98,7 @@ std::string toYaml(const RegistrationReport& r) {
   os << std::setprecision(4);
   const StageTimings& t = r.timings;
   os << "timings_ms: {features: " << t.features << ", relative_pose: " << t.relative_pose << ", scale: " << t.scale
-     << ", filters: " << t.filters << ", icp: " << t.icp << ", covariance: " << t.covariance << ", total: " << t.total
+     << ", filters: " << t.filters << ", icp: " << t.icp << ", covariance: " << t.covariance << ", arbitration: " << t.arbitration << ", total: " << t.total
      << "}\n";
   return os.str();
 }

@@ -188,7 +188,6 @@ void recordVerdict(const GateVerdict& verdict, RegistrationReport* rep, MergeDia
 
 // The keyframe estimate's pairs, counts, anchor and similarity into the report and diagnostics.
 void recordKeyframes(const KeyframeEstimate& kf, RegistrationReport* rep, MergeDiagnostics* diag) {
-  rep->timings.scale = kf.ms;
   reportPairs(kf, rep);
   diag->used_pairs = kf.used_pairs;
   diag->dropped_pairs = kf.dropped_pairs;
@@ -375,9 +374,10 @@ bool arbitrate(const SimilarityInitializer& initializer, const MergeGates& gates
                                      : "the refinement from the pooled estimate failed: " + refinement->message;
   camp.verdict.message = "the keyframe pairs split and the map clouds side with " +
                          std::to_string(camp.keyframes.used_pairs) + " of them (" + why + "); " + camp.verdict.message;
-  camp.keyframes.ms += kf->ms;
-  camp.refinement.ms_icp += refinement->ms_icp;
-  camp.refinement.ms_covariance += refinement->ms_covariance;
+  // The stages' times stay the first pass's; the camps' are the arbitration's (timed by the caller).
+  camp.keyframes.ms = kf->ms;
+  camp.refinement.ms_icp = refinement->ms_icp;
+  camp.refinement.ms_covariance = refinement->ms_covariance;
   *kf = std::move(camp.keyframes);
   *refinement = std::move(camp.refinement);
   *verdict = std::move(camp.verdict);
@@ -435,6 +435,7 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
 
   // 2. Keyframe estimate from every verified pair.
   KeyframeEstimate kf = initializer_.run(source, target, front);
+  rep.timings.scale = kf.ms;
   recordKeyframes(kf, &rep, &diag);
   if (kf.status != Status::kOk) return finish(kf.status, kf.message);
 
@@ -453,7 +454,10 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
 
   // 4. Gates (and, when the keyframe pairs split, the side the clouds take).
   GateVerdict verdict = gates_.judge(kf, refinement, registration);
-  if (arbitrate(initializer_, gates_, registration, &kf, &refinement, &verdict)) {
+  const auto t_arbitration = Clock::now();
+  const bool camp_taken = arbitrate(initializer_, gates_, registration, &kf, &refinement, &verdict);
+  rep.timings.arbitration = msSince(t_arbitration);
+  if (camp_taken) {
     recordKeyframes(kf, &rep, &diag);
     if (diag.projective_refinement) {
       // The camp's refinement is the ICP's (judgeCamp()).
