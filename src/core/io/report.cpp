@@ -98,8 +98,8 @@ std::string toYaml(const RegistrationReport& r) {
   os << std::setprecision(4);
   const StageTimings& t = r.timings;
   os << "timings_ms: {features: " << t.features << ", relative_pose: " << t.relative_pose << ", scale: " << t.scale
-     << ", filters: " << t.filters << ", icp: " << t.icp << ", covariance: " << t.covariance << ", arbitration: " << t.arbitration << ", total: " << t.total
-     << "}\n";
+     << ", filters: " << t.filters << ", icp: " << t.icp << ", covariance: " << t.covariance
+     << ", arbitration: " << t.arbitration << ", total: " << t.total << "}\n";
   return os.str();
 }
 

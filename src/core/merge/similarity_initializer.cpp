@@ -114,10 +114,10 @@ RotationMeasurement rotationMeasurement(const CandidatePair& c, const AgentMap& 
 // the two axes across its optical axis, which the epipolar residuals cannot see; the depth
 // matches, which also look up the depth at the keypoints, need not follow it. Its 1-sigma is
 // taken as relative_pose.pixel_error (ψ, the keypoint accuracy the inlier gate is drawn for),
-// independently in each image. Without it the check was a knife edge on real RGB-D pairs: on
-// slambook2's sharedworld the best pair (150 inliers, 83 depth matches) passed with OpenCV
-// SIFT's quarter-pixel keypoint shift and failed without it (0.26 deg, squared distance 22.1 >
-// 16.3), and no shift swept from -0.5 to +0.25 px kept it but the old one. ψ / f is 0.11 deg
+// independently in each image. Before this term the check was a knife edge on real RGB-D pairs:
+// on slambook2's sharedworld the best pair (150 inliers, 83 depth matches) passed while OpenCV
+// SIFT's quarter-pixel keypoint shift was left in and failed once it was taken off (0.26 deg,
+// squared distance 22.1 > 16.3), and no shift swept from -0.5 to +0.25 px kept it but the old one. ψ / f is 0.11 deg
 // there and 0.22 deg on the bench's 320x240 worlds; the pairs the check refuses on simulated
 // worlds are 3-24 deg off. (A depth image shifted 1-2 px against its keyframe image, simulated,
 // moved the check's squared distances by under 1 %.)
