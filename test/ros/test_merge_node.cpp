@@ -826,7 +826,8 @@ TEST(RealLsdBags, BothDirectionsMergeThroughTheNodeNearTheOverlapTruth) {
   const Sim3 truth_ab = test::sim3FromYaml(rec, "q_xyzw");
   const double truth_sd = std::log(1.25) / 2.0;  // the truth's +-25 % as two of its standard deviations
   Sim3 b_into_a, a_into_b;
-  Eigen::Matrix3d b_into_a_rotation_covariance = Eigen::Matrix3d::Zero(), a_into_b_rotation_covariance = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d b_into_a_rotation_covariance = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d a_into_b_rotation_covariance = Eigen::Matrix3d::Zero();
   for (const bool reverse : {false, true}) {
     const std::string name = reverse ? "a->b" : "b->a";
     const Response r = reverse ? callMerge("agent_a", "agent_b") : callMerge("agent_b", "agent_a");
@@ -864,7 +865,7 @@ TEST(RealLsdBags, BothDirectionsMergeThroughTheNodeNearTheOverlapTruth) {
   EXPECT_LT(Eigen::AngleAxisd(d.rotation()).angle() * 180.0 / M_PI, 6.0);
   EXPECT_LT(std::abs(d.scale() - 1.0), 0.1);
   const Eigen::Vector3d dr = similarityDifference(a_into_b.inverse(), b_into_a).segment<3>(3);
-  const Eigen::Matrix3d turn = a_into_b.inverse().rotation();
+  const Eigen::Matrix3d turn = similarityAdjoint(a_into_b.inverse()).block<3, 3>(3, 3);  // its rotation block
   const Eigen::Matrix3d c = b_into_a_rotation_covariance + turn * a_into_b_rotation_covariance * turn.transpose();
   const double chi2 = dr.dot(c.ldlt().solve(dr));
   std::printf("a->b inverted vs b->a through the node: %.2f deg, squared Mahalanobis distance %.2f (3 DoF)\n",

@@ -367,8 +367,8 @@ TEST(FeatureMatching, KeypointsHaveNoSubpixelBias) {
       ASSERT_GT(my.size(), 100u) << name;
       std::printf("%s, image_scale %.2f: full - 2 half %+.3f %+.3f px (%zu); against the mirrored image %+.3f (%zu), "
                   "%+.3f px (%zu)\n",
-                  name.c_str(), scale, upperMedian(dx), upperMedian(dy), dx.size(), upperMedian(mx), mx.size(), upperMedian(my),
-                  my.size());
+                  name.c_str(), scale, upperMedian(dx), upperMedian(dy), dx.size(), upperMedian(mx), mx.size(),
+                  upperMedian(my), my.size());
       EXPECT_LT(std::abs(upperMedian(dx)), 0.05) << name << " at image_scale " << scale;
       EXPECT_LT(std::abs(upperMedian(dy)), 0.05) << name << " at image_scale " << scale;
       EXPECT_LT(std::abs(upperMedian(mx)), 0.05) << name << " at image_scale " << scale;
