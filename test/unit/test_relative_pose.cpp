@@ -19,6 +19,7 @@
 #include "pcr_pro/frontend/feature_matching.h"
 #include "pcr_pro/geometry/map_types.h"
 #include "pcr_pro/frontend/relative_pose.h"
+#include "pcr_pro/frontend/relative_pose_covariance.h"
 #include "pcr_pro/geometry/sim3.h"
 
 namespace pcr_pro {
@@ -490,6 +491,35 @@ TEST(RelativePose, InlierThresholds) {
   o = RelativePoseOptions();
   r = estimateRelativePose(s.bearings_target, s.bearings_source, 500.0, o);
   EXPECT_EQ(r.status, Status::kOk) << r.message;
+}
+
+// The relative pose ends at the optimum of its inliers' Sampson errors, the cost whose curvature
+// relativeRotationCovariance() reports, so that covariance describes the estimate: over 40 noisy
+// scenes (0.5 px, 10-25 deg apart, no outliers) the rotation errors' mean squared Mahalanobis
+// distance under it is close to its 3 degrees of freedom. A second refinement finds nothing to
+// lower. OpenGV's optimize_nonlinear alone stops on its flat (1 - cos)² cost: these scenes then
+// gave a mean distance of 5.05, 0.08-0.16 deg from the optimum (2.92 from it).
+TEST(RelativePose, EndsAtTheOptimumOfTheCostItsCovarianceDescribes) {
+  std::mt19937 rng(7);
+  const RelativePoseOptions options;
+  const int scenes = 40;
+  double nees_sum = 0.0;
+  for (int k = 0; k < scenes; ++k) {
+    const Scene s = makeScene(&rng, (10.0 + 15.0 * (k % 2)) * kDeg, 120, 0.5, 0.0);
+    const RelativePoseResult r = estimateRelativePose(s.bearings_target, s.bearings_source, 500.0, options);
+    ASSERT_EQ(r.status, Status::kOk) << r.message;
+    const Eigen::Matrix3d cov = relativeRotationCovariance(s.bearings_target, s.bearings_source, r, 500.0, 0.0);
+    const Eigen::AngleAxisd e(r.rotation * s.r_ts.transpose());
+    const Eigen::Vector3d w = e.angle() * e.axis();
+    nees_sum += w.dot(cov.ldlt().solve(w));
+    RelativePoseResult again = r;
+    refineOnSampsonError(s.bearings_target, s.bearings_source, &again);
+    EXPECT_LT(rotationDistance(again.rotation, r.rotation), 1e-6) << "scene " << k;
+  }
+  const double mean = nees_sum / scenes;
+  ::testing::Test::RecordProperty("mean_rotation_nees_x100", static_cast<int>(100 * mean));
+  EXPECT_GT(mean, 3.0 * 0.6);
+  EXPECT_LT(mean, 3.0 * 1.5);
 }
 
 }  // namespace

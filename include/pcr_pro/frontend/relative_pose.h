@@ -73,7 +73,8 @@ struct RelativePoseOptions {
   /// RANSAC stops once it has drawn an outlier-free sample with this probability [-], in (0, 1).
   double probability = 0.999;
   /// Refine the RANSAC model by non-linear optimisation on its inliers, then recompute the
-  /// inliers with the refined model.
+  /// inliers with the refined model; then take it to the optimum of the inliers' Sampson errors
+  /// (refineOnSampsonError()), where its rotation covariance is computed.
   bool nonlinear_refinement = true;
   /// Fewest inliers for the relative pose to be accepted [correspondences], >= 5.
   int min_inliers = 15;

@@ -14,6 +14,7 @@
 #include <random>
 #include <sstream>
 
+#include "pcr_pro/frontend/relative_pose_covariance.h"
 #include "pcr_pro/geometry/sim3.h"
 
 namespace pcr_pro {
@@ -235,7 +236,7 @@ const ParamSchema<RelativePoseOptions>& paramSchema<RelativePoseOptions>() {
       {"max_iterations", &O::max_iterations, R::atLeast(1), "", "RANSAC iteration limit"},
       {"probability", &O::probability, R::open(0, 1), "-", "RANSAC confidence"},
       {"nonlinear_refinement", &O::nonlinear_refinement, R::any(), "",
-       "refine on the inliers, then re-select the inliers"},
+       "refine on the inliers and re-select them, then to their Sampson optimum"},
       {"min_inliers", &O::min_inliers, R::atLeast(5), "", "fewer inliers: the keyframe pair is rejected"},
       {"min_inlier_ratio", &O::min_inlier_ratio, R::closed(0, 1), "-", "smaller inlier fraction: rejected"},
       {"min_spread_px", &O::min_spread_px, R::atLeast(0), "px at focal length",
@@ -328,6 +329,11 @@ RelativePoseResult estimateRelativePose(const std::vector<Eigen::Vector3d>& bear
   }
 
   finishResult(model, inliers, valid, n_given, refined, min_spread_rad, options, &result);
+  // OpenGV's refinement stops short of its optimum (refineOnSampsonError()): the pose is taken on
+  // to the optimum of the cost whose curvature its covariance is.
+  if (options.nonlinear_refinement && result.status == Status::kOk) {
+    refineOnSampsonError(bearings_target, bearings_source, &result);
+  }
   return result;
 }
 
