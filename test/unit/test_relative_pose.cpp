@@ -498,7 +498,8 @@ TEST(RelativePose, InlierThresholds) {
 // scenes (0.5 px, 10-25 deg apart, no outliers) the rotation errors' mean squared Mahalanobis
 // distance under it is close to its 3 degrees of freedom. A second refinement finds nothing to
 // lower. OpenGV's optimize_nonlinear alone stops on its flat (1 - cos)² cost: these scenes then
-// gave a mean distance of 5.05, 0.08-0.16 deg from the optimum (2.92 from it).
+// gave a mean distance of 5.05 (2.92 from the optimum), the first three scenes' poses 0.08-0.16
+// deg from it.
 TEST(RelativePose, EndsAtTheOptimumOfTheCostItsCovarianceDescribes) {
   std::mt19937 rng(7);
   const RelativePoseOptions options;
