@@ -918,23 +918,26 @@ TEST(LowOverlapWorld, WithLsdKeyframeDepthPlanarTwinsTheirOwnMatchesCannotExpose
 }
 
 // A bench world merged b into a without depth images: whether its keyframe pairs split (the
-// report says so), its rotation within max_rotation_deg and scale within 1.5 % of the truth,
-// and the truth inside the reported covariance.
+// report says so), its scale within 1.5 % of the truth, and the truth inside the reported
+// covariance. The merge and the truth are returned for the caller's own checks.
 void expectBenchWorldWithoutDepthImages(double overlap, double drift, double noise, int seed, bool split,
-                                        double max_rotation_deg) {
+                                        MergeResult* merged, Sim3* truth_out) {
   Simulation sim = simulate(test::benchWorldOptions(overlap, drift, noise, seed, false));
   dropDepthImages(&sim);
   const Sim3& truth = sim.pair(0, 1).target_source;
-  const MergeResult r = mergeMaps(sim.agents[1].map, sim.agents[0].map, MergeRequest(), MergeOptions());
+  *truth_out = truth;
+  *merged = mergeMaps(sim.agents[1].map, sim.agents[0].map, MergeRequest(), MergeOptions());
+  const MergeResult& r = *merged;
   ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
   EXPECT_EQ(r.report.message.find("the keyframe pairs split") != std::string::npos, split) << r.report.message;
   // The camp arbitration is timed on its own (it refines at least one camp when the pairs split),
   // and the first pass's stages with it fit inside the total.
   const StageTimings& t = r.report.timings;
-  if (split) EXPECT_GT(t.arbitration, 0.0);
+  if (split) {
+    EXPECT_GT(t.arbitration, 0.0);
+  }
   EXPECT_LE(t.features + t.relative_pose + t.scale + t.filters + t.icp + t.covariance + t.arbitration, t.total);
   ASSERT_TRUE(r.report.transform && r.report.covariance);
-  EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(max_rotation_deg));
   EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
   EXPECT_LT(poseNees(r, truth), kChi2Six95);
 }
@@ -954,7 +957,11 @@ void expectBenchWorldWithoutDepthImages(double overlap, double drift, double noi
 // this one (no depth images), and reports 0.52 deg from the truth. What is checked here is what it
 // must still give: a split said so, and an estimate its covariance covers.
 TEST(LowOverlapWorld, WhenThePairsSplitTheCampTheCloudsSideWithIsReportedWithinItsCovariance) {
-  expectBenchWorldWithoutDepthImages(0.15, 0.025, 0.03, 7, true, 1.0);
+  MergeResult r;
+  Sim3 truth;
+  expectBenchWorldWithoutDepthImages(0.15, 0.025, 0.03, 7, true, &r, &truth);
+  if (HasFatalFailure()) return;
+  EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.0));
 }
 
 // The bench world where the camp arbitration used to decide (above): the pairs do not split, and
@@ -967,17 +974,12 @@ TEST(LowOverlapWorld, WhenThePairsSplitTheCampTheCloudsSideWithIsReportedWithinI
 // NEES 0.5). The reported rotation is therefore not held to the floor here (a known miss, in the
 // bench as o0.15_d0.025_n0.03_s1/nodepth); the rest is.
 TEST(LowOverlapWorld, OnTheNoisiestLowOverlapWorldWithoutDepthImagesThePooledEstimateIsWithinTheFloors) {
-  Simulation sim = simulate(test::benchWorldOptions(0.15, 0.025, 0.03, 1, false));
-  dropDepthImages(&sim);
-  const Sim3& truth = sim.pair(0, 1).target_source;
-  const MergeResult r = mergeMaps(sim.agents[1].map, sim.agents[0].map, MergeRequest(), MergeOptions());
-  ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
-  EXPECT_EQ(r.report.message.find("the keyframe pairs split"), std::string::npos) << r.report.message;
+  MergeResult r;
+  Sim3 truth;
+  expectBenchWorldWithoutDepthImages(0.15, 0.025, 0.03, 1, false, &r, &truth);
+  if (HasFatalFailure()) return;
   EXPECT_LT(rotationDistance(r.diagnostics.initial.rotation(), truth.rotation()), test::rad(1.0));
   EXPECT_LT(std::abs(r.diagnostics.initial.scale() / truth.scale() - 1.0), 0.015);
-  ASSERT_TRUE(r.report.transform && r.report.covariance);
-  EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
-  EXPECT_LT(poseNees(r, truth), kChi2Six95);
 }
 
 // The bench world o0.35_d0.050_n0.01_s0 with depth images: each map's scale drifts 5 % and it
@@ -988,7 +990,7 @@ TEST(LowOverlapWorld, OnTheNoisiestLowOverlapWorldWithoutDepthImagesThePooledEst
 // the estimate to 0.51 deg (0.94 deg from the one-sided truth); without the reweighing this test
 // fails (measured). The combination with the keyframe estimate is off in both runs, so that
 // the refined estimates are compared as they are. The truth is checked against the covariance of
-// the default merge (combination on): with it off, the kept refinement's covariance is its own
+// the default merge (combination on) in the next test: with it off, the kept refinement's covariance is its own
 // plus the between-pair spread, and since the relative poses reach their Sampson optimum
 // (2026-12-06) that spread is smaller and no longer covers the refinement's own over-confidence
 // here (6-DoF NEES 15.3 > 12.6; 9.8 with the combination).
@@ -1005,9 +1007,6 @@ TEST(DriftingWorld, TheKeyframeMatchesAreWeighedUpByTheCloudsBlockSpread) {
   EXPECT_GT(r.diagnostics.anchor_weight, 1.0);
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.0));
   EXPECT_LT(std::abs(r.report.transform->scale() / truth.scale() - 1.0), 0.015);
-  const MergeResult defaults = mergeMaps(b, a, MergeRequest(), MergeOptions());
-  ASSERT_EQ(defaults.report.status, Status::kOk) << defaults.report.message;
-  EXPECT_LT(poseNees(defaults, truth), kChi2Six95);
   MergeOptions unweighed = weighed;
   unweighed.merge.reweigh_keyframe_matches = false;
   const MergeResult u = mergeMaps(b, a, MergeRequest(), unweighed);
