@@ -568,9 +568,15 @@ void dropRotationOutliers(std::vector<PairEvidence>* pairs) {
       if ((*pairs)[i].used) used.push_back(i);
     }
     if (used.size() < 3) return;
-    std::vector<double> chi2s, degs;
-    std::vector<std::size_t> tested;
-    for (const std::size_t p : used) {
+    // Each pair's leave-one-out fit is independent of the others' (one robust fit over the other
+    // pairs' matches, about 1.3 ms for 900 matches): they run in parallel, and are gathered in
+    // the pairs' order so the result does not depend on the threads. On the bench's 50 x 50
+    // keyframe merge (35 pairs, two rounds) this loop was the keyframe stage's largest part.
+    const auto n_used = static_cast<std::ptrdiff_t>(used.size());
+    std::vector<double> chi2_of(used.size(), -1.0), deg_of(used.size(), 0.0);  // < 0: not tested
+#pragma omp parallel for schedule(dynamic)
+    for (std::ptrdiff_t i = 0; i < n_used; ++i) {
+      const std::size_t p = used[static_cast<std::size_t>(i)];
       std::vector<PointMatch3> others;
       for (const std::size_t q : used) {
         if (q != p) others.insert(others.end(), (*pairs)[q].matches.begin(), (*pairs)[q].matches.end());
@@ -592,9 +598,16 @@ void dropRotationOutliers(std::vector<PairEvidence>* pairs) {
       const Eigen::LDLT<Eigen::Matrix3d> ldlt(r.covariance + fit.covariance.block<3, 3>(3, 3));
       const double chi2 = ldlt.info() == Eigen::Success ? dr.dot(ldlt.solve(dr)) : 0.0;
       if (!std::isfinite(chi2)) continue;
-      chi2s.push_back(chi2);
-      degs.push_back(dr.norm() * 180.0 / M_PI);
-      tested.push_back(p);
+      chi2_of[static_cast<std::size_t>(i)] = chi2;
+      deg_of[static_cast<std::size_t>(i)] = dr.norm() * 180.0 / M_PI;
+    }
+    std::vector<double> chi2s, degs;
+    std::vector<std::size_t> tested;
+    for (std::size_t i = 0; i < used.size(); ++i) {
+      if (chi2_of[i] < 0.0) continue;
+      chi2s.push_back(chi2_of[i]);
+      degs.push_back(deg_of[i]);
+      tested.push_back(used[i]);
     }
     if (tested.size() < 3) return;
     std::vector<double> sorted = chi2s;
