@@ -917,16 +917,24 @@ TEST(LowOverlapWorld, WithLsdKeyframeDepthPlanarTwinsTheirOwnMatchesCannotExpose
   EXPECT_LT(poseNees(r, truth), kChi2Six95);
 }
 
-// A bench world merged b into a without depth images: whether its keyframe pairs split (the
-// report says so), its scale within 1.5 % of the truth, and the truth inside the reported
-// covariance. The merge and the truth are returned for the caller's own checks.
-void expectBenchWorldWithoutDepthImages(double overlap, double drift, double noise, int seed, bool split,
-                                        MergeResult* merged, Sim3* truth_out) {
-  Simulation sim = simulate(test::benchWorldOptions(overlap, drift, noise, seed, false));
-  dropDepthImages(&sim);
+// How a bench world's keyframes carry depth in expectBenchWorld().
+enum class KeyframeDepthKind { kNone, kLsd };
+
+// A bench world merged b into a, its keyframes without depth images or with LSD-SLAM's depth
+// (the bench's `nodepth` and `lsd` merges): whether its keyframe pairs split (the report says
+// so), its scale within 1.5 % of the truth, and the truth inside the reported covariance. The
+// merge and the truth are returned for the caller's own checks.
+void expectBenchWorld(double overlap, double drift, double noise, int seed, KeyframeDepthKind depth, bool split,
+                      MergeResult* merged, Sim3* truth_out) {
+  // The bench's lsd worlds are made with a third agent apart (benchWorldOptions' `apart`).
+  const bool lsd = depth == KeyframeDepthKind::kLsd;
+  Simulation sim = simulate(test::benchWorldOptions(overlap, drift, noise, seed, lsd));
+  if (!lsd) dropDepthImages(&sim);
   const Sim3& truth = sim.pair(0, 1).target_source;
   *truth_out = truth;
-  *merged = mergeMaps(sim.agents[1].map, sim.agents[0].map, MergeRequest(), MergeOptions());
+  const AgentMap b = lsd ? test::withLsdKeyframeDepth(sim.agents[1], sim.options.camera) : sim.agents[1].map;
+  const AgentMap a = lsd ? test::withLsdKeyframeDepth(sim.agents[0], sim.options.camera) : sim.agents[0].map;
+  *merged = mergeMaps(b, a, MergeRequest(), MergeOptions());
   const MergeResult& r = *merged;
   ASSERT_EQ(r.report.status, Status::kOk) << r.report.message;
   EXPECT_EQ(r.report.message.find("the keyframe pairs split") != std::string::npos, split) << r.report.message;
@@ -950,33 +958,38 @@ void expectBenchWorldWithoutDepthImages(double overlap, double drift, double noi
 // noise is measured (about 5 % there, not the configured 2 %), those pairs no longer split
 // there (test below). Of 240 bench-like worlds searched (15 and
 // 25 % overlap, 2.5 and 5 % drift, noise 0.02-0.04, seeds 0-9, with LSD depth and without depth
-// images) it decides on two, both without depth images, and on both it moved the estimate away
+// images) it decided on two, both without depth images, and on both it moved the estimate away
 // from the truth: pooled 0.73 deg / -0.4 %, reported 1.11 deg / -0.75 % (15 % overlap, 5 % drift,
-// noise 0.02, seed 2); pooled 0.82 deg, reported 2.19 deg (noise 0.04, seed 9). Since the SIFT
-// keypoints' quarter-pixel shift is taken off (stop 60) it decides on one world of the same 240,
-// this one (no depth images), and reports 0.52 deg from the truth. What is checked here is what it
+// noise 0.02, seed 2); pooled 0.82 deg, reported 2.19 deg (noise 0.04, seed 9). Once the SIFT
+// keypoints' quarter-pixel shift was taken off (stop 60) it decided on one world of the same 240,
+// seed 7 without depth images at noise 0.03 (0.52 deg from the truth). Since each pair's rotation
+// measurement holds the keypoints' common offset (2026-12-07) that world's pairs no longer split,
+// and it decides on one other world of the 240, this one (LSD keyframe depth, noise 0.02, seed 2:
+// the ICP from the pooled estimate runs out of iterations, and the clouds side with 2 of the
+// pairs; 0.62 deg and 0.10 % from the truth, 6-DoF NEES 4.6). What is checked here is what it
 // must still give: a split said so, and an estimate its covariance covers.
 TEST(LowOverlapWorld, WhenThePairsSplitTheCampTheCloudsSideWithIsReportedWithinItsCovariance) {
   MergeResult r;
   Sim3 truth;
-  expectBenchWorldWithoutDepthImages(0.15, 0.025, 0.03, 7, true, &r, &truth);
+  expectBenchWorld(0.15, 0.025, 0.02, 2, KeyframeDepthKind::kLsd, true, &r, &truth);
   if (HasFatalFailure()) return;
   EXPECT_LT(rotationDistance(r.report.transform->rotation(), truth.rotation()), test::rad(1.0));
 }
 
 // The bench world where the camp arbitration used to decide (above): the pairs do not split, and
 // the pooled keyframe estimate, with the depth noise the projected cloud measures, is within the
-// floors (0.35 deg). Until the relative poses were taken to their Sampson optimum (2026-12-06) it
+// floors (0.35 deg; 0.40 since the pairs' rotations hold the keypoints' common offset,
+// 2026-12-07). Until the relative poses were taken to their Sampson optimum (2026-12-06) it
 // was also what the merge reported (0.31 deg). Since then the refinement, 3.7 deg off (the ICP's
 // bias at inverse-depth noise 0.03: README, known limitations), passes the agreement gate just
-// inside it (chi-square 23.5 < 24.3) and lies inside the three pairs' envelope, and the
-// combination reports 1.29 deg from the truth: outside the floors, inside its covariance (6-DoF
-// NEES 0.5). The reported rotation is therefore not held to the floor here (a known miss, in the
+// inside it (chi-square 23.5 < 24.3; 22.5 since 2026-12-07) and lies inside the three pairs'
+// envelope, and the combination reports 1.29 deg from the truth (1.38): outside the floors,
+// inside its covariance (6-DoF NEES 0.5). The reported rotation is therefore not held to the floor here (a known miss, in the
 // bench as o0.15_d0.025_n0.03_s1/nodepth); the rest is.
 TEST(LowOverlapWorld, OnTheNoisiestLowOverlapWorldWithoutDepthImagesThePooledEstimateIsWithinTheFloors) {
   MergeResult r;
   Sim3 truth;
-  expectBenchWorldWithoutDepthImages(0.15, 0.025, 0.03, 1, false, &r, &truth);
+  expectBenchWorld(0.15, 0.025, 0.03, 1, KeyframeDepthKind::kNone, false, &r, &truth);
   if (HasFatalFailure()) return;
   EXPECT_LT(rotationDistance(r.diagnostics.initial.rotation(), truth.rotation()), test::rad(1.0));
   EXPECT_LT(std::abs(r.diagnostics.initial.scale() / truth.scale() - 1.0), 0.015);
