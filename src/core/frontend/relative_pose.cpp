@@ -232,7 +232,8 @@ const ParamSchema<RelativePoseOptions>& paramSchema<RelativePoseOptions>() {
                     "NISTER, STEWENIUS, SEVENPT or EIGHTPT"},
        R::any(), "", "OpenGV minimal solver inside RANSAC"},
       {"pixel_error", &O::pixel_error, R::above(0), "px",
-       "inlier threshold psi; RANSAC threshold 2(1 - cos(atan(psi/f)))"},
+       "inlier threshold psi (RANSAC threshold 2(1 - cos(atan(psi/f)))), and the 1-sigma of an offset common to all "
+       "of one image's keypoints in each pair's rotation covariance"},
       {"max_iterations", &O::max_iterations, R::atLeast(1), "", "RANSAC iteration limit"},
       {"probability", &O::probability, R::open(0, 1), "-", "RANSAC confidence"},
       {"nonlinear_refinement", &O::nonlinear_refinement, R::any(), "",
