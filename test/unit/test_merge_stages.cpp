@@ -984,8 +984,8 @@ TEST(LowOverlapWorld, WhenThePairsSplitTheCampTheCloudsSideWithIsReportedWithinI
 // bias at inverse-depth noise 0.03: README, known limitations), passes the agreement gate just
 // inside it (chi-square 23.5 < 24.3; 22.5 since 2026-12-07) and lies inside the three pairs'
 // envelope, and the combination reports 1.29 deg from the truth (1.38): outside the floors,
-// inside its covariance (6-DoF NEES 0.5). The reported rotation is therefore not held to the floor here (a known miss, in the
-// bench as o0.15_d0.025_n0.03_s1/nodepth); the rest is.
+// inside its covariance (6-DoF NEES 0.5). The reported rotation is therefore not held to the
+// floor here (a known miss, in the bench as o0.15_d0.025_n0.03_s1/nodepth); the rest is.
 TEST(LowOverlapWorld, OnTheNoisiestLowOverlapWorldWithoutDepthImagesThePooledEstimateIsWithinTheFloors) {
   MergeResult r;
   Sim3 truth;
