@@ -125,7 +125,7 @@ RotationMeasurement rotationMeasurement(const CandidatePair& c, const AgentMap& 
 // - In the measurement itself, wherever it is used (the pair's own similarity, the leave-one-out
 //   check, the pooled fit; 2026-12-07): with the term in the check alone, a single pair on the
 //   real slambook2 maps without depth images claimed a rotation 1-sigma of 0.02-0.04 deg and lay
-//   0.10-0.13 deg from the truth (robustness sweep, full density and 30 %, roll 0 and 90 deg).
+//   0.07-0.14 deg per axis from the truth (robustness sweep, full density and 30 %, roll 0 and 90 deg).
 //   The bench's effect is in docs/DESIGN.md ("One keyframe pair's relative-pose rotation claims
 //   too much").
 Eigen::Matrix3d keypointOffsetCovariance(const RotationMeasurement& m, const Sim3& cam_s, const Sim3& cam_t,
