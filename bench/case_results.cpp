@@ -32,6 +32,9 @@ void scoreOurs(const MergeResult& r, const CaseInput& in, const Matrix7d& truth_
       if (local != in.local_truths.end()) {
         out.reported_local = score(*r.report.transform, d.covariance, local->second, truth_cov, centroid, extent);
         out.keyframe_local = score(d.initial, d.keyframe_covariance, local->second, truth_cov, centroid, extent);
+        if (d.refinement_status == Status::kOk) {
+          out.refined_local = score(d.refined, d.refined_covariance, local->second, truth_cov, centroid, extent);
+        }
       }
     }
   }
@@ -153,6 +156,7 @@ CaseResult runCase(const CaseInput& in, const CaseRunOptions& options,
   out.ms = nowMs() - t0;
   out.status = statusName(r.report.status);
   out.refinement_kept = r.diagnostics.refinement_kept;
+  out.disagreement_scale = r.diagnostics.disagreement_scale;
   out.used_pairs = r.diagnostics.used_pairs;
   scoreOurs(r, in, truth_cov, centroid, extent, out);
   if (options.peers && haveOpen3d()) {
@@ -248,7 +252,7 @@ int bestOpen3dSetting(const std::vector<CaseResult>& results, const std::string&
 Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::string, int>& best_setting) {
   Aggregate a;
   a.pcl_success.assign(pclMethods().size(), 0);
-  std::vector<Score> rep, kf, ref, local, keyframe_local, keyframe_same;
+  std::vector<Score> rep, kf, ref, local, keyframe_local, keyframe_same, refined_local;
   std::vector<double> ms, o3d_ms;
   for (const CaseResult& c : results) {
     ms.push_back(c.ms);
@@ -281,6 +285,11 @@ Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::
     }
     if (c.reported.has) rep.push_back(c.reported);
     if (c.reported_local.has) local.push_back(c.reported_local);
+    if (c.refined_local.has) refined_local.push_back(c.refined_local);
+    if (c.reported_local.has && c.reported_local.has_covariance && c.refinement_kept) {
+      ++a.kept_local;
+      a.kept_local_beyond_unraised += c.reported_local.nees6 > kChi2_95_6 && !(c.disagreement_scale > 1.0);
+    }
     if (c.keyframe_local.has && c.keyframe.has) {
       keyframe_local.push_back(c.keyframe_local);
       keyframe_same.push_back(c.keyframe);
@@ -294,6 +303,7 @@ Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::
   a.nees_local = pool(local);
   a.nees_keyframe_local = pool(keyframe_local);
   a.nees_keyframe_same = pool(keyframe_same);
+  a.nees_refined_local = pool(refined_local);
   a.median_ms = median(ms);
   a.median_open3d_ms = o3d_ms.empty() ? 0.0 : median(o3d_ms);
   return a;
@@ -320,6 +330,9 @@ void writeCaseCsv(std::FILE* f, const std::vector<CaseResult>& results) {
     }
     if (c.keyframe_local.has) {
       line(c, "pcr_pro keyframe-only against the anchor pair's local truth", "ESTIMATE", c.keyframe_local, true, 0.0);
+    }
+    if (c.refined_local.has) {
+      line(c, "pcr_pro refined against the anchor pair's local truth", "ESTIMATE", c.refined_local, true, 0.0);
     }
     for (std::size_t k = 0; k < c.open3d.size(); ++k) {
       if (!c.open3d[k].tried) continue;

@@ -65,6 +65,12 @@ struct CaseResult {
   /// The keyframe-only estimate and its covariance against the same local truth (the edge's anchor
   /// pair is the keyframe estimate's), when reported_local.has.
   Score keyframe_local;
+  /// The refinement (also when not kept) and its own covariance against the same local truth, when
+  /// reported_local.has and the refinement converged.
+  Score refined_local;
+  /// A kept refinement's raise by its disagreement with the keyframe estimate
+  /// (MergeDiagnostics::disagreement_scale) [-].
+  double disagreement_scale = 1.0;
   std::vector<PeerRun> open3d;         ///< one per open3dSettings()
   std::vector<PeerRun> pcl;            ///< one per pclMethods(), from our keyframe estimate
   /// Our refinement alone (the merge's MapRegistration, no keyframe anchors) started at the exact
@@ -129,6 +135,10 @@ struct Aggregate {
   NeesPool nees_local;  ///< of reported_local (cases whose anchor pair's local truth is known)
   NeesPool nees_keyframe_local;  ///< of keyframe_local (the same cases)
   NeesPool nees_keyframe_same;   ///< of keyframe (overlap truth) on the cases of keyframe_local
+  NeesPool nees_refined_local;   ///< of refined_local
+  /// Of the merges in nees_local that report a kept refinement: how many, and how many of those
+  /// are beyond the 6-DoF bound with no raise (disagreement_scale 1).
+  int kept_local = 0, kept_local_beyond_unraised = 0;
   double median_ms = 0.0, median_open3d_ms = 0.0;
 };
 Aggregate aggregate(const std::vector<CaseResult>& results, const std::map<std::string, int>& best_setting);

@@ -214,6 +214,14 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
                  neesCell(kl.anees6, kl.under6).c_str(), neesCell(kl.anees_scale, kl.under_scale).c_str(),
                  neesCell(ko.anees_rot, ko.under_rot).c_str(), neesCell(ko.anees6, ko.under6).c_str(),
                  neesCell(ko.anees_scale, ko.under_scale).c_str());
+    const NeesPool& rl = a.nees_refined_local;
+    std::fprintf(md, "The refinement's own covariance against the same local truths (rows `pcr_pro refined against the "
+                     "anchor pair's local truth`, n = %d): ANEES rotation %s, 6-DoF %s, scale %s. Of the %d merges "
+                     "above that report a kept refinement, those beyond the 6-DoF bound with no raise by the "
+                     "disagreement with the keyframe estimate (`disagreement_scale` 1): %d. On those the keyframe "
+                     "side's covariance explains that disagreement (docs/DESIGN.md, \"What the disagreement raise cannot see\").\n\n",
+                 rl.n, neesCell(rl.anees_rot, rl.under_rot).c_str(), neesCell(rl.anees6, rl.under6).c_str(),
+                 neesCell(rl.anees_scale, rl.under_scale).c_str(), a.kept_local, a.kept_local_beyond_unraised);
   }
   // One aggregate table per sweep dimension (the cases regrouped), and by the keyframe depth's source.
   const std::vector<std::pair<const char*, std::function<std::string(const CaseResult&)>>> groupings = {
