@@ -218,8 +218,8 @@ void writeSimulated(Output& out, const SimSweep& s, const std::vector<CaseResult
     std::fprintf(md, "The refinement's own covariance against the same local truths (rows `pcr_pro refined against the "
                      "anchor pair's local truth`, n = %d): ANEES rotation %s, 6-DoF %s, scale %s. Of the %d merges "
                      "above that report a kept refinement, those beyond the 6-DoF bound with no raise by the "
-                     "disagreement with the keyframe estimate (`disagreement_scale` 1): %d. On those the keyframe "
-                     "side's covariance explains that disagreement (docs/DESIGN.md, \"What the disagreement raise cannot see\").\n\n",
+                     "disagreement with the keyframe estimate (`disagreement_scale` 1): %d. On those the disagreement "
+                     "lies within the two estimates' covariances (docs/DESIGN.md, \"What the disagreement raise cannot see\").\n\n",
                  rl.n, neesCell(rl.anees_rot, rl.under_rot).c_str(), neesCell(rl.anees6, rl.under6).c_str(),
                  neesCell(rl.anees_scale, rl.under_scale).c_str(), a.kept_local, a.kept_local_beyond_unraised);
   }
