@@ -671,6 +671,29 @@ TEST_F(SimWorld, NonOverlappingMapsAreRefused) {
   EXPECT_FALSE(r.report.transform.has_value());
 }
 
+// A source map whose keyframe poses and map cloud come from different states of its SLAM (with
+// input `pcr_pro` the node keeps the latest X/cloud and the latest pose of each keyframe, which
+// a loop closure can set apart): every keyframe pose turned by a few degrees about the map's y
+// axis through the cloud's centroid, the cloud left as it was. The keyframe pairs then measure
+// one similarity and the clouds another, and the merge refuses. Measured on this bench world
+// (35 % overlap, no drift, inverse-depth noise 0.01, depth images): 2 and 4 deg give
+// INCONSISTENT (squared Mahalanobis distance 318 and 585, beyond 4 x 24.3), 8 deg NO_OVERLAP
+// (9.7 % at the keyframe estimate). About the x axis the same turns are not refused (README,
+// known limitations); this test holds what the gates do catch.
+TEST(StaleCloud, KeyframePosesTurnedAgainstTheirOwnMapCloudAreRefused) {
+  const Simulation sim = simulate(test::benchWorldOptions(0.35, 0.0, 0.01, 0, false));
+  for (const double deg : {2.0, 4.0, 8.0}) {
+    AgentMap b = sim.agents[1].map;
+    const Eigen::Vector3d c = b.cloud.rowwise().mean();
+    const Eigen::Matrix3d turn = Eigen::AngleAxisd(test::rad(deg), Eigen::Vector3d::UnitY()).toRotationMatrix();
+    const Sim3 stale(1.0, turn, c - turn * c);
+    for (MapKeyframe& k : b.keyframes) k.pose = stale * k.pose;
+    const MergeResult r = mergeMaps(b, sim.agents[0].map, MergeRequest(), MergeOptions());
+    EXPECT_NE(r.report.status, Status::kOk) << deg << " deg: " << r.report.message;
+    EXPECT_FALSE(r.report.transform.has_value()) << deg << " deg";
+  }
+}
+
 // A room seen by two agents that overlap by 15 % from viewpoints 50-70 deg apart, 320x240 keyframes
 // as real LSD-SLAM runs give: several of the verified pairs look at one wall each, where the
 // relative pose has a planar twin that fits the same inliers.
