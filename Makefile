@@ -3,7 +3,8 @@
 #   make test   install missing Debian packages, build, run all tests (ctest)
 #   make build  configure (once) and build only
 #   make bench  build and run the benchmarks, regenerate docs/BENCHMARKS.md (BENCH_ARGS=--quick for a short run,
-#               BENCH_ARGS=--node for the node section alone: the real LSD-SLAM bags merged through merge_node)
+#               BENCH_ARGS=--node for the node section alone: the real LSD-SLAM bags merged through merge_node,
+#               BENCH_ARGS="--only real,simulated [--ours-only]" for some suite sections into build/bench_sections)
 #   The real two-agent cases are built with the build, from PCR_PRO_DATA_DIR (docs/FORMATS.md).
 # Debian's /usr/bin comes first on PATH: a pyenv python3 would break catkin.
 SHELL := /bin/bash
