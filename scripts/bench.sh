@@ -19,6 +19,7 @@ mode="${1:-}"
 export PATH=/usr/bin:$PATH
 # Re-configure: PCL / Open3D (the peers) may have been installed after the first configure.
 cmake -S "$here" -B "$build" -DPCR_PRO_BUILD_BENCH=ON >/dev/null
+bin="$build/devel/lib/pcr_pro"
 case "$mode" in
   ""|--quick|--node) ;;
   --only)
@@ -30,7 +31,7 @@ case "$mode" in
     sections_out="$build/bench_sections"
     rm -rf "$sections_out"
     mkdir -p "$sections_out"
-    "$build/devel/lib/pcr_pro/pcr_pro_bench_suite" "$sections_out" "$@"
+    "$bin/pcr_pro_bench_suite" "$sections_out" "$@"
     echo "bench: the tables are in $sections_out (docs/ unchanged)" >&2
     exit 0
     ;;
@@ -48,7 +49,6 @@ if [ "$mode" = "--node" ]; then
   "$here/scripts/bench_node.sh" "$build" "$out" || node_status=$?
 else
   cmake --build "$build" -j 2 --target pcr_pro_bench pcr_pro_bench_suite pcr_pro_real_cases merge_node pcr_pro_bench_node
-  bin="$build/devel/lib/pcr_pro"
   rm -rf "$out"
   mkdir -p "$out"
   start=$(date +%s)
