@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 #include <Eigen/QR>
 
@@ -513,6 +514,34 @@ TEST(Covariance, DegenerateUncertaintyReportsTheInformationOfTheCovarianceItRepo
   const ReportedUncertainty nothing = degenerateUncertainty(not_finite, nullptr);
   EXPECT_FALSE(nothing.covariance.has_value());
   EXPECT_EQ(nothing.information, Matrix6d::Zero());
+}
+
+// A spread of two estimates has rank 1 in each block; isotropicBlocksAt() keeps each block's size
+// (its trace, with the translation taken at the centre) and spreads it over every axis, and drops
+// the cross terms between the blocks, as blockDiagonalAt() does.
+TEST(Covariance, IsotropicBlocksAtKeepsEachBlocksSizeOverEveryAxis) {
+  Eigen::Matrix<double, 7, 1> d;
+  d << 0.02, -0.01, 0.03, 0.004, 0.0, -0.002, 0.01;
+  const Matrix7d spread = d * d.transpose();
+  const Eigen::Vector3d centre(1.0, -2.0, 0.5);
+  const Matrix7d iso = isotropicBlocksAt(spread, centre);
+  // Back at the centre (u = K^-1 delta, the translation at the centre): isotropic blocks.
+  Matrix7d k = Matrix7d::Identity();
+  k.block<3, 3>(0, 3) = skew(centre);
+  k.block<3, 1>(0, 6) = -centre;
+  const Matrix7d kinv = k.inverse();
+  const Matrix7d u_in = kinv * spread * kinv.transpose(), u_out = kinv * iso * kinv.transpose();
+  for (int b = 0; b < 6; b += 3) {
+    const Eigen::Matrix3d in = u_in.block(b, b, 3, 3), out = u_out.block(b, b, 3, 3);
+    EXPECT_NEAR(out.trace(), in.trace(), 1e-12 * in.trace());
+    EXPECT_TRUE(out.isApprox(Eigen::Matrix3d::Identity() * out(0, 0), 1e-12));
+  }
+  EXPECT_NEAR(u_out(6, 6), u_in(6, 6), 1e-12 * u_in(6, 6));
+  const double cross = u_out.block(0, 3, 3, 3).norm() + u_out.block(0, 6, 6, 1).norm();
+  EXPECT_LT(cross, 1e-12 * u_in.norm());
+  // Full rank where the spread had rank 1.
+  const Eigen::SelfAdjointEigenSolver<Matrix7d> eig(iso);
+  EXPECT_GT(eig.eigenvalues().minCoeff(), 0.0);
 }
 
 }  // namespace

@@ -156,6 +156,14 @@ std::vector<std::vector<Eigen::Index>> spatialBlocks(const Cloud& points, int bl
 Matrix7d blockDiagonalAt(const Matrix7d& covariance, const Eigen::Vector3d& centre);
 
 /**
+ * @brief As blockDiagonalAt(), with each 3x3 block (the translation at `centre`, the rotation)
+ * replaced by its trace spread evenly over its three axes. Two or three estimates fix the size
+ * of a spread, not its directions: their sample covariance has rank 1 or 2, and taken as it is
+ * it would claim no spread at all across them.
+ */
+Matrix7d isotropicBlocksAt(const Matrix7d& covariance, const Eigen::Vector3d& centre);
+
+/**
  * @brief Raises a covariance result until it covers `spread` (7x7 of δ with the log scale as
  * 7th variable, coveringCovariance()): its 6x6 covariance, information and 7x7 are updated.
  * @return the largest enlargement along any direction [-], 1 when spread is inside already

@@ -266,6 +266,18 @@ Matrix7d blockDiagonalAt(const Matrix7d& covariance, const Eigen::Vector3d& cent
   return 0.5 * (out + out.transpose());
 }
 
+Matrix7d isotropicBlocksAt(const Matrix7d& covariance, const Eigen::Vector3d& centre) {
+  const Matrix7d k = centroidToOrigin(centre, 1.0);
+  const Matrix7d kinv = k.inverse();
+  const Matrix7d u = kinv * covariance * kinv.transpose();
+  Matrix7d blocks = Matrix7d::Zero();
+  blocks.block<3, 3>(0, 0) = Eigen::Matrix3d::Identity() * (u.block<3, 3>(0, 0).trace() / 3.0);
+  blocks.block<3, 3>(3, 3) = Eigen::Matrix3d::Identity() * (u.block<3, 3>(3, 3).trace() / 3.0);
+  blocks(6, 6) = u(6, 6);
+  const Matrix7d out = k * blocks * k.transpose();
+  return 0.5 * (out + out.transpose());
+}
+
 Matrix7d logScaleCovariance(const CovarianceResult& c, double scale) {
   Matrix7d out = Matrix7d::Zero();
   if (c.with_scale) {
