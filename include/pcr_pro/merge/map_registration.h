@@ -14,6 +14,7 @@
 
 #include "pcr_pro/geometry/kdtree.h"
 #include "pcr_pro/geometry/similarity_fit.h"
+#include "pcr_pro/merge/ray_noise.h"
 #include "pcr_pro/registration/config.h"
 #include "pcr_pro/registration/covariance.h"
 #include "pcr_pro/registration/icp.h"
@@ -64,6 +65,11 @@ struct Refinement {
   /// (merge.projective_refinement), not the ICP's; the gates then do not combine it with the
   /// keyframe estimate (MergeGates::judge())
   bool projective = false;
+  /// Re-noised registrations whose spread is in covariance (MapRegistration::setRayNoise();
+  /// 0 = none: not asked for, or fewer than two gave an estimate).
+  int renoise_draws = 0;
+  /// That spread, as added to covariance (similarity_fit.h convention; zero when renoise_draws is 0).
+  Matrix7d renoise_spread = Matrix7d::Zero();
   double ms_icp = 0.0, ms_covariance = 0.0;
 };
 
@@ -108,6 +114,23 @@ class MapRegistration {
    */
   Refinement refine(const Sim3& initial, const std::vector<PointMatch3>& anchors) const;
 
+  /**
+   * @brief The re-noising policy (merge.renoise_draws): refine() then registers the clouds again
+   * `draws` times from its estimate, each time with both clouds re-noised along their maps'
+   * rays (renoiseAlongRays(); the same anchors), and adds the spread of those estimates around
+   * its own to the covariance (Refinement::renoise_spread). The closed form and the block spread
+   * hold the normals and correspondences fixed; a registration of re-noised clouds re-fits them,
+   * which is where most of the ICP's error on noisy semi-dense maps comes from (docs/DESIGN.md).
+   * The spread is block-diagonal at the anchors' centroid (at the aligned source cloud's without
+   * anchors), each 3x3 block (translation, rotation) isotropic with its trace: a few draws fix a
+   * size, not directions. Nothing is added when a model is not valid() or fewer than two draws
+   * give an estimate (the message says so).
+   * @param[in] source, target the two maps' models (measureRayNoise())
+   * @param[in] draws re-noised registrations, >= 0; 0 = off
+   * @throw InputError when draws < 0
+   */
+  void setRayNoise(const RayNoise& source, const RayNoise& target, int draws);
+
   /// How much noisier the source's surfaces are than the target's at the scale of `target_source`
   /// (Refinement::noise_ratio); 1 when either thickness is unknown.
   double noiseRatio(const Sim3& target_source) const;
@@ -130,7 +153,12 @@ class MapRegistration {
   IcpOptions icpOptions() const;
   // refine() in one direction: `source` onto `target` (indexed by target_tree).
   Refinement refineDirected(const Cloud& source, const Cloud& target, const KdTree& target_tree, const Sim3& initial,
-                            const std::vector<PointMatch3>& anchors) const;
+                            const std::vector<PointMatch3>& anchors, const RayNoise& source_noise,
+                            const RayNoise& target_noise) const;
+  // The re-noised registrations' spread into `refinement` (setRayNoise()), in the direction the
+  // ICP ran (source onto target).
+  void addRenoisedSpread(const Cloud& source, const Cloud& target, const std::vector<PointMatch3>& anchors,
+                         const RayNoise& source_noise, const RayNoise& target_noise, Refinement* refinement) const;
   // refineDirected() before the jackknife.
   Refinement refineOnce(const Cloud& source, const KdTree& target_tree, const Sim3& initial,
                         const std::vector<PointMatch3>& anchors) const;
@@ -152,6 +180,8 @@ class MapRegistration {
   std::unique_ptr<KdTree> target_tree_, source_tree_;
   double target_spacing_ = 0.0, source_spacing_ = 0.0;
   double filter_ms_ = 0.0;
+  RayNoise source_noise_, target_noise_;
+  int renoise_draws_ = 0;
 };
 
 }  // namespace pcr_pro

@@ -56,6 +56,10 @@ struct MergeDiagnostics {
   double anchor_weight = 1.0;        ///< Refinement::anchor_weight [-]
   bool refinement_reversed = false;  ///< Refinement::reversed
   double noise_ratio = 1.0;          ///< Refinement::noise_ratio [-]
+  /// Re-noised registrations whose spread is in refined_covariance (Refinement::renoise_draws;
+  /// 0 = none: merge.renoise_draws off, or no spread formed)
+  int renoise_draws = 0;
+  Matrix7d renoise_spread = Matrix7d::Zero();  ///< that spread (Refinement::renoise_spread)
   Sim3 initial;                    ///< the keyframe estimate of S_target_source
   Matrix7d keyframe_covariance = Matrix7d::Zero();  ///< its (predictive) covariance (similarity_fit.h)
   /// The keyframe estimate's covariance as the pooled mean's standard error alone (without the

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <map>
 #include <numeric>
@@ -153,11 +154,12 @@ Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointM
   if (!target_tree_) throw InputError("MapRegistration::refine: setClouds() first");
   const double ratio = noiseRatio(initial);
   if (!options_.icp.register_noisier_as_target || !clearlyNoisier(ratio)) {
-    Refinement out = refineDirected(source_, target_, *target_tree_, initial, anchors);
+    Refinement out = refineDirected(source_, target_, *target_tree_, initial, anchors, source_noise_, target_noise_);
     out.noise_ratio = ratio;
     return out;
   }
-  Refinement out = refineDirected(target_, source_, *source_tree_, initial.inverse(), reversedAnchors(anchors, initial));
+  Refinement out = refineDirected(target_, source_, *source_tree_, initial.inverse(), reversedAnchors(anchors, initial),
+                                  target_noise_, source_noise_);
   invertRefinement(&out);
   out.noise_ratio = ratio;
   std::ostringstream msg;
@@ -168,18 +170,96 @@ Refinement MapRegistration::refine(const Sim3& initial, const std::vector<PointM
   return out;
 }
 
+void MapRegistration::setRayNoise(const RayNoise& source, const RayNoise& target, int draws) {
+  if (draws < 0) throw InputError("MapRegistration::setRayNoise: draws must be >= 0, got " + std::to_string(draws));
+  source_noise_ = source;
+  target_noise_ = target;
+  renoise_draws_ = draws;
+}
+
 Refinement MapRegistration::refineDirected(const Cloud& source, const Cloud& target, const KdTree& target_tree,
-                                           const Sim3& initial, const std::vector<PointMatch3>& anchors) const {
+                                           const Sim3& initial, const std::vector<PointMatch3>& anchors,
+                                           const RayNoise& source_noise, const RayNoise& target_noise) const {
   Refinement out = refineOnce(source, target_tree, initial, anchors);
+  if (out.status != Status::kOk) return out;
   const int blocks = options_.covariance.jackknife_blocks;
-  if (blocks == 0 || out.status != Status::kOk) return out;
-  const auto t = Clock::now();
-  const JackknifeSpread spread =
-      jackknifeCovariance(source, target, out.estimate, icpOptions(), blocks, anchors.empty() ? nullptr : &anchors);
-  if (spread.ok) out.covariance = coveringCovariance(out.covariance, spread.covariance);
-  out.message += "; " + spread.message;
-  out.ms_covariance += msSince(t);
+  if (blocks > 0) {
+    const auto t = Clock::now();
+    const JackknifeSpread spread =
+        jackknifeCovariance(source, target, out.estimate, icpOptions(), blocks, anchors.empty() ? nullptr : &anchors);
+    if (spread.ok) out.covariance = coveringCovariance(out.covariance, spread.covariance);
+    out.message += "; " + spread.message;
+    out.ms_covariance += msSince(t);
+  }
+  if (renoise_draws_ > 0) addRenoisedSpread(source, target, anchors, source_noise, target_noise, &out);
   return out;
+}
+
+void MapRegistration::addRenoisedSpread(const Cloud& source, const Cloud& target,
+                                        const std::vector<PointMatch3>& anchors, const RayNoise& source_noise,
+                                        const RayNoise& target_noise, Refinement* refinement) const {
+  Refinement& out = *refinement;
+  if (!source_noise.valid() || !target_noise.valid()) {
+    out.message += std::string("; no re-noised registrations: the ") + (source_noise.valid() ? "target" : "source") +
+                   " map's ray noise was not measured (no keyframe's projection of its cloud holds enough pixel pairs)";
+    return;
+  }
+  const auto t = Clock::now();
+  const IcpOptions icp = icpOptions();
+  // The draws are independent and seeded by their index (a merge repeated gives the same
+  // covariance, however the draws are spread over threads): one per core.
+  const int draws = renoise_draws_;
+  std::vector<Vector7d> all(static_cast<std::size_t>(draws));
+  std::vector<char> has(static_cast<std::size_t>(draws), 0);
+#pragma omp parallel for schedule(dynamic)
+  for (int k = 0; k < draws; ++k) {
+    const auto draw = static_cast<std::uint64_t>(k);
+    const Cloud s = renoiseAlongRays(source, source_noise, 2 * draw + 1);
+    const KdTree tree(renoiseAlongRays(target, target_noise, 2 * draw + 2));
+    const IcpResult r = alignIcp(s, tree, out.estimate, icp, anchors.empty() ? nullptr : &anchors);
+    const Vector7d d = similarityDifference(r.transform, out.estimate);
+    const auto i = static_cast<std::size_t>(k);
+    all[i] = d;
+    has[i] = (r.status == Status::kOk || r.correspondences >= icp.min_correspondences) && d.allFinite() ? 1 : 0;
+  }
+  std::vector<Vector7d> deltas;
+  for (std::size_t i = 0; i < all.size(); ++i) {
+    if (has[i]) deltas.push_back(all[i]);
+  }
+  out.ms_covariance += msSince(t);
+  std::ostringstream msg;
+  msg.precision(3);
+  if (deltas.size() < 2) {
+    msg << "; re-noised registrations: " << deltas.size() << " of " << renoise_draws_
+        << " gave an estimate, fewer than 2: no spread added";
+    out.message += msg.str();
+    return;
+  }
+  // Their mean square around the estimate (each draw is a fresh error of the same kind), at the
+  // anchors' centroid (where the edge is measured) or the aligned source's.
+  Matrix7d m = Matrix7d::Zero();
+  for (const Vector7d& d : deltas) m += d * d.transpose() / static_cast<double>(deltas.size());
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  if (!anchors.empty()) {
+    for (const PointMatch3& a : anchors) centre += a.target / static_cast<double>(anchors.size());
+  } else {
+    centre = out.estimate.apply(source).rowwise().mean();
+  }
+  Matrix7d spread = isotropicBlocksAt(m, centre);
+  if (!estimate_scale_) {
+    spread.row(6).setZero();
+    spread.col(6).setZero();
+  }
+  if (!spread.allFinite()) {
+    out.message += "; re-noised registrations: the spread is not finite, not added";
+    return;
+  }
+  out.covariance += spread;
+  out.renoise_spread = spread;
+  out.renoise_draws = static_cast<int>(deltas.size());
+  msg << "; spread of " << out.renoise_draws << " re-noised registrations added (rotation "
+      << std::sqrt(std::max(0.0, spread.block<3, 3>(3, 3).trace() / 3.0)) * 180.0 / M_PI << " deg per axis)";
+  out.message += msg.str();
 }
 
 IcpOptions MapRegistration::icpOptions() const {

@@ -22,6 +22,10 @@ const ParamSchema<MergeGateOptions>& paramSchema<MergeGateOptions>() {
        "the keyframe estimate is a prior: a refinement kept is combined with it (information-weighted mean, the "
        "refinement's covariance raised by the agreement gate's excess max(1, chi2 / 7)); off = the refined estimate "
        "as it is (depth-camera clouds, where the keyframe pairs are the worse evidence)"},
+      {"renoise_draws", &O::renoise_draws, R::atLeast(0), "draws",
+       "after the ICP refinement, the map clouds re-noised along their keyframes' rays (at the noise each map's cloud "
+       "shows) and registered again this many times; their spread is added to the refinement's covariance "
+       "(conservative edges); 0 = off (about one ICP run per draw, on a core of its own)"},
       {"max_candidate_pairs", &O::max_candidate_pairs, R::atLeast(0), "pairs",
        "without keyframe ids, only the keyframe pairs with the most descriptor votes are matched in full; 0 = every "
        "pair (cost grows with the product of the keyframe counts)"},

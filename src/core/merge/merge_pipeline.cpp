@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include "pcr_pro/merge/ray_noise.h"
 #include "pcr_pro/registration/covariance.h"
 #include "pcr_pro/registration/scale_detection.h"
 
@@ -167,6 +168,8 @@ void recordRefinement(const Refinement& refinement, RegistrationReport* rep, Mer
   diag->anchor_weight = refinement.anchor_weight;
   diag->refinement_reversed = refinement.reversed;
   diag->noise_ratio = refinement.noise_ratio;
+  diag->renoise_draws = refinement.renoise_draws;
+  diag->renoise_spread = refinement.renoise_spread;
   rep->refinement_reversed = refinement.reversed;
   diag->refinement_status = refinement.status;
   diag->refined = refinement.estimate;
@@ -446,6 +449,14 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
   rep.timings.filters = registration.filterMs();
   if (!cloud_problem.empty()) return finish(Status::kInvalidInput, cloud_problem);
   recordScaleDetection(registration, options_.registration.scale_detection, &rep);
+  double ms_ray_noise = 0.0;
+  if (options_.merge.renoise_draws > 0) {
+    // The maps' ray noise for the refinement's re-noised registrations (merge.renoise_draws).
+    const auto t = Clock::now();
+    registration.setRayNoise(measureRayNoise(source, options_.keyframe_depth),
+                             measureRayNoise(target, options_.keyframe_depth), options_.merge.renoise_draws);
+    ms_ray_noise = msSince(t);
+  }
   Refinement refinement;
   if (!options_.merge.projective_refinement || !refineProjectively(source, target, kf, options_, &refinement, &diag)) {
     refinement = registration.refine(kf.estimate, kf.matches);
@@ -467,6 +478,7 @@ MergeResult MergePipeline::merge(const AgentMap& source, const AgentMap& target,
     }
   }
   recordRefinement(refinement, &rep, &diag);
+  rep.timings.covariance += ms_ray_noise;
   recordVerdict(verdict, &rep, &diag);
   const PairEvidence& anchor = kf.pairs[static_cast<std::size_t>(kf.anchor)];
   if (!options_.merge.refine_scale && verdict.refinement_kept) {
