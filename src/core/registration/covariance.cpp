@@ -253,29 +253,32 @@ std::vector<std::vector<Eigen::Index>> spatialBlocks(const Cloud& points, int bl
   return out;
 }
 
-Matrix7d blockDiagonalAt(const Matrix7d& covariance, const Eigen::Vector3d& centre) {
+// The covariance's blocks (translation at `centre`, rotation, log scale) without their cross
+// terms, each 3x3 block made isotropic with its trace when asked (blockDiagonalAt(),
+// isotropicBlocksAt()).
+namespace {
+Matrix7d blocksAt(const Matrix7d& covariance, const Eigen::Vector3d& centre, bool isotropic) {
   // δ = K u with u's translation at the centre (rho 1: u's rotation and scale are δ's).
   const Matrix7d k = centroidToOrigin(centre, 1.0);
   const Matrix7d kinv = k.inverse();
   const Matrix7d u = kinv * covariance * kinv.transpose();
   Matrix7d blocks = Matrix7d::Zero();
-  blocks.block<3, 3>(0, 0) = u.block<3, 3>(0, 0);
-  blocks.block<3, 3>(3, 3) = u.block<3, 3>(3, 3);
+  for (int b = 0; b < 6; b += 3) {
+    const Eigen::Matrix3d block = u.block<3, 3>(b, b);
+    blocks.block<3, 3>(b, b) = isotropic ? Eigen::Matrix3d(Eigen::Matrix3d::Identity() * (block.trace() / 3.0)) : block;
+  }
   blocks(6, 6) = u(6, 6);
   const Matrix7d out = k * blocks * k.transpose();
   return 0.5 * (out + out.transpose());
 }
+}  // namespace
+
+Matrix7d blockDiagonalAt(const Matrix7d& covariance, const Eigen::Vector3d& centre) {
+  return blocksAt(covariance, centre, false);
+}
 
 Matrix7d isotropicBlocksAt(const Matrix7d& covariance, const Eigen::Vector3d& centre) {
-  const Matrix7d k = centroidToOrigin(centre, 1.0);
-  const Matrix7d kinv = k.inverse();
-  const Matrix7d u = kinv * covariance * kinv.transpose();
-  Matrix7d blocks = Matrix7d::Zero();
-  blocks.block<3, 3>(0, 0) = Eigen::Matrix3d::Identity() * (u.block<3, 3>(0, 0).trace() / 3.0);
-  blocks.block<3, 3>(3, 3) = Eigen::Matrix3d::Identity() * (u.block<3, 3>(3, 3).trace() / 3.0);
-  blocks(6, 6) = u(6, 6);
-  const Matrix7d out = k * blocks * k.transpose();
-  return 0.5 * (out + out.transpose());
+  return blocksAt(covariance, centre, true);
 }
 
 Matrix7d logScaleCovariance(const CovarianceResult& c, double scale) {
